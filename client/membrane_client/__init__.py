@@ -1,0 +1,1 @@
+"""membrane_client: the thin client (pyzmq, msgpack, numpy only)."""

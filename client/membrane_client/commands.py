@@ -1,0 +1,106 @@
+"""The `membrane` command: a small dispatcher over subcommands that each package registers.
+
+Every package lists its subcommands in the ``membrane.commands`` entry-point group. An entry point
+names a function ``add(subparsers)`` that adds one subparser and sets ``handler`` on it; the
+function must import with the core dependencies alone, so that a client-only install still lists
+every command. Heavy imports happen inside the handler: when one is missing the dispatcher says, in
+one line, which extra to install.
+
+Exit codes: 0 success, 1 failure of the job itself (as each command documents), 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Callable, Sequence
+from importlib.metadata import entry_points
+from typing import NoReturn
+
+__all__ = ["EXTRA_FOR_MODULE", "OneLineParser", "UsageError", "main"]
+
+COMMAND_GROUP = "membrane.commands"
+
+# Which extra brings in each optional top-level module (for the "install membrane[...]" hint).
+EXTRA_FOR_MODULE: dict[str, str] = {
+    "onnxruntime": "server",
+    "pydantic": "server",
+    "scipy": "server",
+    "torch": "train",
+    "onnx": "train",
+    "tqdm": "bench",
+    "hdrh": "bench",
+    "matplotlib": "plot",
+    "coppeliasim_zmqremoteapi_client": "coppelia",
+    "cbor2": "coppelia",
+}
+
+
+class UsageError(ValueError):
+    """Bad input at the command line: reported in one line, exit code 2."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line on stderr and exit code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = OneLineParser(
+        prog="membrane",
+        description="Real-time soft-tissue engine: physics-informed networks served over ZeroMQ.",
+    )
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv)")
+    subparsers = parser.add_subparsers(
+        title="commands", dest="command", metavar="COMMAND", parser_class=OneLineParser
+    )
+    for entry in sorted(entry_points(group=COMMAND_GROUP), key=lambda e: e.name):
+        try:
+            add: Callable[[argparse._SubParsersAction], None] = entry.load()  # type: ignore[type-arg]
+        except (ImportError, AttributeError) as exc:  # a package of ours not installed
+            logging.getLogger(__name__).debug("command %s unavailable: %s", entry.name, exc)
+            continue
+        add(subparsers)
+    return parser
+
+
+def _missing_extra_message(exc: ModuleNotFoundError) -> str:
+    top = (exc.name or "").split(".")[0]
+    extra = EXTRA_FOR_MODULE.get(top)
+    if extra is None:
+        return f"missing module {exc.name!r}: {exc}"
+    return f"this command needs the '{extra}' extra: pip install 'membrane[{extra}]' ({top} missing)"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the `membrane` command line; returns the process exit code."""
+    parser = _build_parser()
+    args = parser.parse_args(argv)
+    level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    handler = getattr(args, "handler", None)
+    if handler is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(handler(args) or 0)
+    except ModuleNotFoundError as exc:
+        print(f"membrane {args.command}: {_missing_extra_message(exc)}", file=sys.stderr)
+        return 2
+    except (UsageError, ValueError, OSError) as exc:
+        print(f"membrane {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"membrane {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""membrane_server: the ZeroMQ inference daemon."""
