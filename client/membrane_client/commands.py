@@ -59,7 +59,7 @@ def _build_parser() -> argparse.ArgumentParser:
     )
     for entry in sorted(entry_points(group=COMMAND_GROUP), key=lambda e: e.name):
         try:
-            add: Callable[[argparse._SubParsersAction], None] = entry.load()  # type: ignore[type-arg]
+            add: Callable[[argparse._SubParsersAction[OneLineParser]], None] = entry.load()
         except (ImportError, AttributeError) as exc:  # a package of ours not installed
             logging.getLogger(__name__).debug("command %s unavailable: %s", entry.name, exc)
             continue
@@ -72,7 +72,7 @@ def _missing_extra_message(exc: ModuleNotFoundError) -> str:
     extra = EXTRA_FOR_MODULE.get(top)
     if extra is None:
         return f"missing module {exc.name!r}: {exc}"
-    return f"this command needs the '{extra}' extra: pip install 'membrane[{extra}]' ({top} missing)"
+    return f"needs the '{extra}' extra: pip install 'membrane[{extra}]' ({top} is missing)"
 
 
 def main(argv: Sequence[str] | None = None) -> int:

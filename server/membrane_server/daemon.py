@@ -13,6 +13,7 @@ import contextlib
 import fcntl
 import logging
 import os
+import select
 from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
@@ -69,6 +70,12 @@ class PidFile:
             raise RuntimeError("pidfile not acquired")
         return self._handle.fileno()
 
+    def detach(self) -> None:
+        """Close this process's handle without removing the file (another process holds it)."""
+        if self._handle is not None:
+            self._handle.close()
+            self._handle = None
+
     def release(self) -> None:
         """Remove the file and drop the lock (idempotent)."""
         if self._handle is None:
@@ -91,35 +98,109 @@ class PidFile:
         self.release()
 
 
-def run_detached(main: Callable[[], int], pidfile: str | Path, logfile: str | Path | None) -> int:
-    """Detach from the terminal and run ``main`` as a daemon holding ``pidfile``.
+def run_detached(
+    main: Callable[[Callable[[str], None]], int],
+    pidfile: str | Path | None,
+    logfile: str | Path | None,
+    ready_timeout: float = 120.0,
+) -> int:
+    """Run ``main(notify_ready)`` as a detached daemon; return in the launching process.
 
-    Only the daemon returns from here (with ``main``'s exit code); the launching process exits
-    0 inside python-daemon once the daemon is detached. Raises ``AlreadyRunning`` before
-    detaching when the pidfile is held. ``main`` must create its ZeroMQ context and inference
-    sessions itself: neither survives a fork.
+    The launcher takes the pidfile lock (raising ``AlreadyRunning`` at once if it is held),
+    forks, and waits until the daemon calls ``notify_ready(address)`` once it serves, or fails.
+    So "the command returned 0" means "the server answers": scripts can `membrane ping` right
+    after. The launcher returns 0 when the daemon is ready and 1 when it failed to start (its
+    reason, from the daemon or the log file, is logged). The daemon itself never returns from
+    here: it exits with ``main``'s code. ``main`` must create its ZeroMQ context and inference
+    sessions itself, since neither survives a fork.
     """
+    lock = PidFile(pidfile) if pidfile else None
+    if lock is not None:
+        lock.acquire()
+    read_end, write_end = os.pipe()
+    child = os.fork()
+    if child == 0:  # pragma: no cover - runs in the daemon, outside coverage's process
+        os.close(read_end)
+        os._exit(_daemon_main(main, lock, logfile, write_end))
+    os.close(write_end)
+    if lock is not None:
+        lock.detach()  # the daemon holds the lock now; the launcher must not remove the file
+    try:
+        return _await_ready(read_end, ready_timeout, logfile)
+    finally:
+        os.close(read_end)
+        os.waitpid(child, 0)  # the intermediate process exits as soon as the daemon detaches
+
+
+def _await_ready(read_end: int, timeout: float, logfile: str | Path | None) -> int:
+    where = f" (see {logfile})" if logfile else ""
+    ready, _, _ = select.select([read_end], [], [], timeout)
+    if not ready:
+        log.error("the daemon did not report ready within %.0f s%s", timeout, where)
+        return 1
+    message = os.read(read_end, 4096).decode(errors="replace").strip()
+    status, _, detail = message.partition(" ")
+    if status == "ready":
+        log.info("daemon serving on %s", detail)
+        return 0
+    log.error("the daemon failed to start: %s%s", detail or "it exited", where)
+    return 1
+
+
+def _daemon_main(
+    main: Callable[[Callable[[str], None]], int],
+    lock: PidFile | None,
+    logfile: str | Path | None,
+    notify_fd: int,
+) -> int:
     import daemon  # the `server` extra
 
-    lock = PidFile(pidfile)
-    lock.acquire()
     log_path = Path(logfile).resolve() if logfile else Path(os.devnull)
     log_stream = log_path.open("a", buffering=1)
+    keep = [log_stream.fileno(), notify_fd] + ([lock.fileno()] if lock is not None else [])
     context = daemon.DaemonContext(
         working_directory="/",
         umask=0o022,
-        files_preserve=[lock.fileno(), log_stream.fileno()],
+        files_preserve=keep,
         stdout=log_stream,
         stderr=log_stream,
         signal_map={},  # the server installs its own SIGTERM/SIGINT/SIGHUP handlers
     )
     with context:
-        lock.write_pid()
+        if lock is not None:
+            lock.write_pid()
         _log_to(log_stream)
+
+        notifier = _Notifier(notify_fd)
+        code = 1
         try:
-            return main()
+            code = main(lambda address: notifier.send(f"ready {address}"))
+        except Exception as exc:
+            log.exception("the server failed")
+            notifier.send(f"error {' '.join(str(exc).split())}")
         finally:
-            lock.release()
+            notifier.send(f"error the server exited with code {code}")  # no-op once ready
+            if lock is not None:
+                lock.release()
+        return code
+
+
+class _Notifier:
+    """Sends one line to the launcher, once: the descriptor is closed right after."""
+
+    def __init__(self, fd: int) -> None:
+        self._fd: int | None = fd
+
+    def send(self, message: str) -> None:
+        if self._fd is None:
+            return
+        fd, self._fd = self._fd, None
+        try:
+            os.write(fd, (message + "\n").encode())
+        except OSError:  # the launcher is gone: nobody to tell
+            pass
+        finally:
+            os.close(fd)
 
 
 def _log_to(stream: IO[str]) -> None:

@@ -1,0 +1,148 @@
+"""`membrane query` (one frame, as a summary or JSON) and `membrane ping` (a health check).
+
+Exit codes: 0 answered; 1 no answer (timeout) or a server-side failure; 2 bad input (including
+a request the server refuses as bad, such as a NaN time or an unknown scene).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from membrane_client.client import DEFAULT_ADDRESS, Client
+from membrane_client.errors import MembraneError, ServerError
+from membrane_client.frame import Frame
+from membrane_client.protocol import ErrorCode
+
+__all__ = ["add_ping", "add_query"]
+
+if TYPE_CHECKING:  # argparse's class is generic for type checkers only
+    Subparsers = argparse._SubParsersAction[argparse.ArgumentParser]
+
+# Error codes that mean "your request was wrong": exit code 2, like any bad input.
+_CALLER_ERRORS = {
+    ErrorCode.BAD_REQUEST,
+    ErrorCode.UNKNOWN_SCENE,
+    ErrorCode.INVALID_TIME,
+    ErrorCode.OUT_OF_DOMAIN,
+}
+
+
+def add_query(subparsers: Subparsers) -> None:
+    """Register `membrane query`."""
+    parser = subparsers.add_parser(
+        "query",
+        help="ask a server for one frame",
+        description="Query the frame served for simulation time T and print it.",
+    )
+    _add_connection_arguments(parser)
+    parser.add_argument("--scene", help="scene name (needed when the server hosts several)")
+    parser.add_argument("--t", type=float, required=True, metavar="T", help="time in seconds")
+    parser.add_argument("--json", action="store_true", help="print the whole frame as JSON")
+    parser.add_argument(
+        "--float64", action="store_true", help="ask for float64 displacements (default float32)"
+    )
+    parser.set_defaults(handler=_run_query)
+
+
+def add_ping(subparsers: Subparsers) -> None:
+    """Register `membrane ping`."""
+    parser = subparsers.add_parser(
+        "ping",
+        help="check that a server answers (exit 0) or not (exit 1)",
+        description="Send one ping; exit 0 when the server answers, 1 otherwise.",
+    )
+    _add_connection_arguments(parser)
+    parser.set_defaults(handler=_run_ping)
+
+
+def _add_connection_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--connect",
+        default=DEFAULT_ADDRESS,
+        metavar="ADDR",
+        help=f"server endpoint (default {DEFAULT_ADDRESS})",
+    )
+    parser.add_argument(
+        "--timeout", type=float, default=2.0, metavar="S", help="seconds to wait (default 2)"
+    )
+
+
+def _run_query(args: argparse.Namespace) -> int:
+    _check_timeout(args.timeout)
+    try:
+        with Client(args.connect, timeout=args.timeout, scene=args.scene) as client:
+            frame = client.query(args.t, dtype="<f8" if args.float64 else "<f4")
+    except MembraneError as exc:
+        return _report_failure("query", exc)
+    print(json.dumps(frame_to_json(frame)) if args.json else frame_summary(frame))
+    return 0
+
+
+def _run_ping(args: argparse.Namespace) -> int:
+    _check_timeout(args.timeout)
+    try:
+        with Client(args.connect, timeout=args.timeout) as client:
+            seconds = client.ping()
+            hello = client.hello()
+    except MembraneError as exc:
+        print(f"membrane ping: {args.connect}: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    scenes = ", ".join(str(name) for name in hello.get("scenes", []))
+    print(
+        f"pong from {args.connect} in {seconds * 1e3:.3f} ms "
+        f"({hello.get('server')}, protocol {hello.get('protocol')}, scenes: {scenes})"
+    )
+    return 0
+
+
+def frame_to_json(frame: Frame) -> dict[str, Any]:
+    """A frame as plain JSON data (z as nested lists of floats, shaped like the lattice)."""
+    return {
+        "scene": frame.scene,
+        "t": frame.t,
+        "step": frame.step,
+        "requested_t": frame.requested_t,
+        "domain": frame.domain,
+        "shape": list(frame.z.shape),
+        "max_abs_z": float(np.abs(frame.z).max()) if frame.z.size else 0.0,
+        "z": frame.z.astype(np.float64).tolist(),
+    }
+
+
+def frame_summary(frame: Frame) -> str:
+    """A few human-readable lines about a frame."""
+    z = frame.z
+    lines = [
+        f"scene {frame.scene}: step {frame.step}, t = {frame.t:.6g} s "
+        f"(requested {frame.requested_t:.6g} s, {frame.domain})"
+    ]
+    if z.size:
+        peak = np.unravel_index(int(np.argmax(np.abs(z))), z.shape)
+        where = ", ".join(str(int(i)) for i in peak)
+        shape = " x ".join(str(n) for n in z.shape)
+        lines.append(
+            f"lattice {shape}: max |z| = {float(np.abs(z).max()):.4g} at [{where}], "
+            f"mean z = {float(z.mean()):.4g}"
+        )
+    return "\n".join(lines)
+
+
+def _check_timeout(timeout: float) -> None:
+    from membrane_client.commands import UsageError  # the dispatcher's own error type
+
+    if not timeout > 0:
+        raise UsageError(f"--timeout must be > 0 seconds, got {timeout}")
+
+
+def _report_failure(command: str, exc: MembraneError) -> int:
+    print(f"membrane {command}: {_one_line(exc)}", file=sys.stderr)
+    return 2 if isinstance(exc, ServerError) and exc.code in _CALLER_ERRORS else 1
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__

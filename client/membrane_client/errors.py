@@ -1,0 +1,31 @@
+"""The client's exception tree: one base class, library errors converted at the boundary."""
+
+from __future__ import annotations
+
+__all__ = ["MembraneError", "ProtocolError", "ServerError", "Timeout"]
+
+
+class MembraneError(Exception):
+    """Base class of every error the client raises."""
+
+
+class Timeout(MembraneError):
+    """No reply arrived within the client's timeout (after its retries, if any)."""
+
+
+class ProtocolError(MembraneError):
+    """A message that does not follow the wire protocol (undecodable, wrong shape or version)."""
+
+
+class ServerError(MembraneError):
+    """The server answered with an error reply.
+
+    Attributes:
+        code: The error code (one of ``membrane_client.protocol.ErrorCode``'s values, as a str).
+        message: The server's one-line explanation.
+    """
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(f"{code}: {message}")
+        self.code = code
+        self.message = message

@@ -1,0 +1,183 @@
+"""The wire codec, version 1: one msgpack map per message (spec: docs/PROTOCOL.md).
+
+Both sides use this module: the client to build requests and read replies, the server to read
+requests and build replies. It depends on msgpack and numpy only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from enum import StrEnum
+from typing import Any
+
+import msgpack
+import numpy as np
+
+from membrane_client.errors import ProtocolError, ServerError
+
+__all__ = [
+    "ARRAY_DTYPES",
+    "MAX_LATTICE_POINTS",
+    "MAX_REPLY_BYTES",
+    "MAX_REQUEST_BYTES",
+    "MAX_SESSION_CHARS",
+    "PROTOCOL_VERSION",
+    "Domain",
+    "ErrorCode",
+    "Op",
+    "check_reply",
+    "decode",
+    "encode",
+    "error_reply",
+    "ok_reply",
+    "pack_array",
+    "request",
+    "unpack_array",
+]
+
+PROTOCOL_VERSION = 1
+
+# Limits (docs/PROTOCOL.md, "Limits"). Requests are tiny maps; replies carry whole frames.
+MAX_REQUEST_BYTES = 64 * 1024
+MAX_REPLY_BYTES = 64 * 1024 * 1024
+MAX_LATTICE_POINTS = 65_536
+MAX_SESSION_CHARS = 64
+
+# Little-endian float32 for displacements, float64 for coordinates (never lose digits of a time
+# or a position on the wire).
+ARRAY_DTYPES = ("<f4", "<f8")
+
+
+class Op(StrEnum):
+    """The operations a version-1 server answers."""
+
+    HELLO = "hello"
+    DESCRIBE = "describe"
+    QUERY = "query"
+    STATS = "stats"
+    PING = "ping"
+
+
+class ErrorCode(StrEnum):
+    """The ``code`` of an error reply."""
+
+    BAD_MESSAGE = "bad_message"
+    BAD_VERSION = "bad_version"
+    BAD_REQUEST = "bad_request"
+    UNKNOWN_OP = "unknown_op"
+    UNKNOWN_SCENE = "unknown_scene"
+    INVALID_TIME = "invalid_time"
+    OUT_OF_DOMAIN = "out_of_domain"
+    INTERNAL_ERROR = "internal_error"
+
+
+class Domain(StrEnum):
+    """Where a query's time fell, as the ``domain`` field of a query reply says."""
+
+    INSIDE = "inside"
+    CLAMPED = "clamped"
+    HELD = "held"
+
+
+def encode(message: Mapping[str, Any]) -> bytes:
+    """Serialise one message (a map with str keys) to msgpack bytes."""
+    data: bytes = msgpack.packb(dict(message), use_bin_type=True)
+    return data
+
+
+def decode(data: bytes) -> dict[str, Any]:
+    """Parse one message; raises ProtocolError unless it is a msgpack map with str keys."""
+    try:
+        message = msgpack.unpackb(data, raw=False, strict_map_key=True)
+    except Exception as exc:  # msgpack raises a zoo of types on garbage; all mean the same here
+        raise ProtocolError(f"not a msgpack message: {type(exc).__name__}: {exc}") from None
+    if not isinstance(message, dict):
+        raise ProtocolError(f"a message must be a msgpack map, got {type(message).__name__}")
+    if not all(isinstance(key, str) for key in message):
+        raise ProtocolError("a message's keys must all be strings")
+    return message
+
+
+def request(op: str, request_id: int, **fields: Any) -> dict[str, Any]:
+    """Build a request envelope; fields whose value is None are left out."""
+    message: dict[str, Any] = {"v": PROTOCOL_VERSION, "id": int(request_id), "op": str(op)}
+    message.update({key: value for key, value in fields.items() if value is not None})
+    return message
+
+
+def ok_reply(request_id: int | None, **fields: Any) -> dict[str, Any]:
+    """Build a success reply to the request with this id."""
+    return {"v": PROTOCOL_VERSION, "id": request_id, "ok": True, **fields}
+
+
+def error_reply(request_id: int | None, code: ErrorCode | str, message: str) -> dict[str, Any]:
+    """Build an error reply; ``message`` is flattened to one line."""
+    text = " ".join(str(message).split()) or str(code)
+    return {
+        "v": PROTOCOL_VERSION,
+        "id": request_id,
+        "ok": False,
+        "error": {"code": str(code), "message": text},
+    }
+
+
+def pack_array(array: np.ndarray, dtype: str = "<f4") -> dict[str, Any]:
+    """Encode an array as ``{"dtype", "shape", "data"}`` (C order, little-endian)."""
+    if dtype not in ARRAY_DTYPES:
+        raise ValueError(f"dtype must be one of {ARRAY_DTYPES}, got {dtype!r}")
+    values = np.ascontiguousarray(array, dtype=np.dtype(dtype))
+    return {"dtype": dtype, "shape": [int(n) for n in values.shape], "data": values.tobytes()}
+
+
+def unpack_array(obj: Any) -> np.ndarray:
+    """Decode an array map; raises ProtocolError if it is malformed.
+
+    The result is a read-only view of the message's bytes (no copy).
+    """
+    if not isinstance(obj, dict):
+        raise ProtocolError(f"an array must be a map, got {type(obj).__name__}")
+    dtype, shape, data = obj.get("dtype"), obj.get("shape"), obj.get("data")
+    if dtype not in ARRAY_DTYPES:
+        raise ProtocolError(f"array dtype must be one of {ARRAY_DTYPES}, got {dtype!r}")
+    if not isinstance(shape, list) or not all(_is_count(n) for n in shape):
+        raise ProtocolError(f"array shape must be a list of non-negative ints, got {shape!r}")
+    if not isinstance(data, bytes):
+        raise ProtocolError(f"array data must be bin, got {type(data).__name__}")
+    itemsize = np.dtype(dtype).itemsize
+    expected = math.prod(shape) * itemsize
+    if len(data) != expected:
+        raise ProtocolError(f"array data is {len(data)} bytes; shape {shape} needs {expected}")
+    return np.frombuffer(data, dtype=np.dtype(dtype)).reshape(shape)
+
+
+def check_reply(message: Mapping[str, Any], request_id: int) -> dict[str, Any]:
+    """Validate a reply to the request ``request_id`` and return it.
+
+    Raises:
+        ServerError: The reply is a well-formed error reply (carries its ``code``).
+        ProtocolError: The reply does not follow the protocol or answers another request.
+    """
+    if message.get("v") != PROTOCOL_VERSION:
+        raise ProtocolError(f"reply version {message.get('v')!r}, expected {PROTOCOL_VERSION}")
+    ok = message.get("ok")
+    if not isinstance(ok, bool):
+        raise ProtocolError("reply has no boolean 'ok'")
+    if not ok:
+        error = message.get("error")
+        if not isinstance(error, dict):
+            raise ProtocolError("error reply without an 'error' map")
+        code, text = error.get("code"), error.get("message")
+        if not isinstance(code, str) or not isinstance(text, str):
+            raise ProtocolError("error reply needs str 'code' and 'message'")
+        # An error to a request the server could not read carries id nil: still ours.
+        if message.get("id") not in (request_id, None):
+            raise ProtocolError(f"reply id {message.get('id')!r} answers another request")
+        raise ServerError(code, text)
+    if message.get("id") != request_id:
+        raise ProtocolError(f"reply id {message.get('id')!r}, expected {request_id}")
+    return dict(message)
+
+
+def _is_count(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0

@@ -1,0 +1,261 @@
+"""Scene files: what a server serves (model, lattice, placement, time grid, evaluator, policy).
+
+A scene is a TOML file validated with pydantic (fields: docs/SCENES.md). ``load_scene`` takes a
+built-in scene's name (package data in ``membrane_server/scenes``) or a file path; every error is
+a ``SceneError`` (a ValueError) whose message names the field and the reason.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Sequence
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from membrane_client.protocol import MAX_LATTICE_POINTS
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+__all__ = [
+    "DEFAULT_TABLE_MAX_BYTES",
+    "SCENES_DIR",
+    "EvaluatorKind",
+    "Lattice",
+    "Placement",
+    "Scene",
+    "SceneError",
+    "builtin_scenes",
+    "load_scene",
+]
+
+SCENES_DIR = Path(str(resources.files("membrane_server") / "scenes"))
+DEFAULT_TABLE_MAX_BYTES = 256 * 1024 * 1024
+# A duration counts as a whole number of steps when it is within this many steps of one.
+_STEP_TOLERANCE = 1e-9
+
+EvaluatorKind = Literal["network", "separable", "table", "exact"]
+
+
+class SceneError(ValueError):
+    """A scene that cannot be read, validated or served."""
+
+
+class _Strict(BaseModel):
+    # Unknown keys are typos; NaN and infinities are never meaningful in a scene.
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class Lattice(_Strict):
+    """Where the displacement is evaluated: a regular grid or an explicit list of points.
+
+    A grid has ``nx`` points along x (and ``ny`` along y for a membrane), end points included,
+    over the model's spatial domain. Grid points are ordered x-major: point ``i * ny + j`` is
+    (x_i, y_j), so a frame reshaped to (nx, ny) is indexed [i, j].
+    """
+
+    nx: int | None = Field(default=None, ge=1, le=MAX_LATTICE_POINTS)
+    ny: int | None = Field(default=None, ge=1, le=MAX_LATTICE_POINTS)
+    points: list[list[float]] | None = Field(default=None, min_length=1)
+
+    @field_validator("points")
+    @classmethod
+    def _rows_alike(cls, points: list[list[float]] | None) -> list[list[float]] | None:
+        if points is None:
+            return None
+        width = len(points[0])
+        if width not in (1, 2):
+            raise ValueError(f"each point needs 1 (x) or 2 (x, y) coordinates, got {width}")
+        for index, row in enumerate(points):
+            if len(row) != width:
+                raise ValueError(f"point {index} has {len(row)} coordinates, point 0 has {width}")
+        if len(points) > MAX_LATTICE_POINTS:
+            raise ValueError(f"{len(points)} points, more than the limit {MAX_LATTICE_POINTS}")
+        return points
+
+    @model_validator(mode="after")
+    def _one_form(self) -> Lattice:
+        if self.points is not None:
+            if self.nx is not None or self.ny is not None:
+                raise ValueError("give either nx[, ny] or points, not both")
+            return self
+        if self.nx is None:
+            raise ValueError("give nx (and ny for a membrane) or a list of points")
+        if self.nx * (self.ny or 1) > MAX_LATTICE_POINTS:
+            raise ValueError(
+                f"nx * ny = {self.nx * (self.ny or 1)} points, more than the limit "
+                f"{MAX_LATTICE_POINTS}"
+            )
+        return self
+
+    @property
+    def dims(self) -> int:
+        """Number of spatial coordinates per point (1 or 2)."""
+        if self.points is not None:
+            return len(self.points[0])
+        return 1 if self.ny is None else 2
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """Shape of a frame: (nx,), (nx, ny), or (n,) for a point list."""
+        if self.points is not None:
+            return (len(self.points),)
+        assert self.nx is not None  # guaranteed by _one_form
+        return (self.nx,) if self.ny is None else (self.nx, self.ny)
+
+    def coordinates(self, bounds: Sequence[tuple[float, float]]) -> np.ndarray:
+        """(n, d) float64 coordinates, a grid spanning ``bounds`` (one (low, high) per axis).
+
+        Raises:
+            SceneError: The lattice's dimension differs from the model's, or a listed point lies
+                outside ``bounds``.
+        """
+        if len(bounds) != self.dims:
+            raise SceneError(
+                f"lattice: the model has {len(bounds)} space axes, the lattice {self.dims} "
+                f"({'give nx and ny' if len(bounds) == 2 else 'give nx only'})"
+            )
+        if self.points is not None:
+            points = np.asarray(self.points, dtype=np.float64)
+            for axis, (low, high) in enumerate(bounds):
+                outside = np.flatnonzero((points[:, axis] < low) | (points[:, axis] > high))
+                if outside.size:
+                    raise SceneError(
+                        f"lattice.points.{int(outside[0])}: {self.points[outside[0]]} lies "
+                        f"outside the model's domain [{low}, {high}] on axis {axis}"
+                    )
+            return points
+        counts = self.shape
+        axes = [np.linspace(low, high, n) for (low, high), n in zip(bounds, counts, strict=True)]
+        grids = np.meshgrid(*axes, indexing="ij")
+        return np.stack([g.reshape(-1) for g in grids], axis=1)
+
+
+class Placement(_Strict):
+    """Where the lattice sits in the simulator's world, and how displacements show.
+
+    Lattice coordinate u (and v) times ``size`` runs along the two world axes other than
+    ``axis`` (x, y, z order); a sphere rests at ``origin`` plus that and moves by ``scale * z``
+    along ``axis``.
+    """
+
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    size: float = Field(default=1.0, gt=0.0)
+    scale: float = 1.0
+    axis: Literal["x", "y", "z"] = "z"
+
+
+class Scene(_Strict):
+    """One served scene (field reference: docs/SCENES.md)."""
+
+    name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
+    description: str = ""
+    model: str = Field(min_length=1)
+    evaluator: EvaluatorKind
+    lattice: Lattice
+    placement: Placement = Placement()
+    dt: float = Field(gt=0.0)
+    duration: float = Field(gt=0.0)
+    start_offset: float = 0.0
+    snapping: Literal["nearest", "linear"] = "nearest"
+    policy: Literal["error", "clamp", "hold"] = "hold"
+    table_max_bytes: int = Field(default=DEFAULT_TABLE_MAX_BYTES, gt=0)
+    # Where the file was read from: relative model paths are resolved against its folder.
+    source: Path | None = Field(default=None, exclude=True)
+
+    @field_validator("duration")
+    @classmethod
+    def _whole_steps(cls, duration: float, info: ValidationInfo) -> float:
+        dt = info.data.get("dt")
+        if dt is None:  # dt itself failed validation; that error is reported
+            return duration
+        ratio = duration / dt
+        if round(ratio) < 1 or abs(ratio - round(ratio)) > _STEP_TOLERANCE * max(1.0, ratio):
+            raise ValueError(
+                f"must be a whole number (>= 1) of dt ({dt}) steps, got {ratio:.6g} steps"
+            )
+        return duration
+
+    @property
+    def last_step(self) -> int:
+        """N: the frames are steps 0 .. N."""
+        return round(self.duration / self.dt)
+
+    @property
+    def steps(self) -> int:
+        """Number of frames, N + 1."""
+        return self.last_step + 1
+
+    def model_path(self) -> Path | None:
+        """The model as a path, when ``model`` names a file (resolved against the scene file)."""
+        path = Path(self.model)
+        if path.suffix not in (".json", ".onnx"):
+            return None
+        if not path.is_absolute() and self.source is not None:
+            path = self.source.parent / path
+        return path
+
+
+def builtin_scenes() -> list[str]:
+    """Names of the scenes shipped with the server, sorted."""
+    return sorted(p.stem for p in SCENES_DIR.glob("*.toml"))
+
+
+def load_scene(name_or_path: str | Path) -> Scene:
+    """Read and validate a scene: a built-in scene's name, or a TOML file's path.
+
+    The scene's ``name`` defaults to the file's stem.
+
+    Raises:
+        SceneError: Unknown name, unreadable file, invalid TOML, or a field that fails
+            validation (the message names it).
+    """
+    path = _scene_path(name_or_path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise SceneError(f"cannot read scene {path}: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"scene {path}: invalid TOML: {exc}") from None
+    data.setdefault("name", path.stem)
+    return scene_from_dict(data, source=path.resolve())
+
+
+def scene_from_dict(data: dict[str, Any], source: Path | None = None) -> Scene:
+    """Validate a scene given as plain data (parsed TOML); raises SceneError naming fields."""
+    where = f"scene {source}" if source is not None else "scene"
+    if "source" in data:
+        raise SceneError(f"{where}: source: not a scene field")
+    try:
+        return Scene.model_validate({**data, "source": source})
+    except ValidationError as exc:
+        raise SceneError(f"{where}: {_describe_errors(exc)}") from None
+
+
+def _scene_path(name_or_path: str | Path) -> Path:
+    text = str(name_or_path)
+    path = Path(text)
+    if path.suffix == ".toml" or path.is_file() or "/" in text:
+        return path
+    builtin = SCENES_DIR / f"{text}.toml"
+    if not builtin.is_file():
+        known = ", ".join(builtin_scenes()) or "none"
+        raise SceneError(f"unknown scene {text!r}; built-in scenes: {known} (or give a .toml path)")
+    return builtin
+
+
+def _describe_errors(exc: ValidationError) -> str:
+    parts = []
+    for error in exc.errors(include_url=False):
+        location = ".".join(str(part) for part in error["loc"]) or "scene"
+        message = str(error["msg"]).removeprefix("Value error, ")
+        parts.append(f"{location}: {message}")
+    return "; ".join(parts)

@@ -1,0 +1,281 @@
+"""The ZeroMQ loop: a ROUTER socket answering every request, one at a time, in one thread.
+
+No client can stall the others: the loop never waits on a client (replies are sent without
+blocking; ZeroMQ drops a reply to a peer that is gone or not reading), every request is answered
+in bounded time, and malformed input costs one error reply.
+
+Shutdown has one path: ``request_stop()`` (what SIGTERM/SIGINT call, from a signal handler or
+any thread) sets a flag; the loop finishes the reply in flight, closes its socket and returns.
+``stop()`` is ``request_stop()`` plus waiting for a background thread.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterable, Mapping
+from pathlib import Path
+from types import FrameType, TracebackType
+
+import zmq
+
+from membrane_client.protocol import MAX_REQUEST_BYTES
+from membrane_server.dispatch import Dispatcher, ServedScene
+from membrane_server.scene import Scene, load_scene
+from membrane_server.stats import Stats
+
+__all__ = ["DEFAULT_BIND", "Server"]
+
+DEFAULT_BIND = "tcp://127.0.0.1:5555"
+
+logger = logging.getLogger(__name__)
+
+# How long the loop waits for a request before it looks at the stop flag again.
+_POLL_MS = 50
+_START_TIMEOUT_S = 10.0
+
+
+class Server:
+    """The membrane server.
+
+    Args:
+        scenes: Scenes to host: ``ServedScene`` objects, ``Scene`` objects, built-in scene names
+            or TOML paths (loaded and built here, before any socket exists).
+        bind: ZeroMQ endpoint; ``tcp://127.0.0.1:*`` picks a free port (see ``address``).
+        threads: onnxruntime intra-op threads per graph.
+        context: ZeroMQ context (default: the process-wide shared one).
+        socket_options: Extra socket options (option -> value) for the ROUTER socket, set
+            before binding (e.g. CurveZMQ keys).
+
+    Raises:
+        SceneError, ManifestError: A scene cannot be served (message names the cause).
+    """
+
+    def __init__(
+        self,
+        scenes: Iterable[ServedScene | Scene | str | Path],
+        bind: str = DEFAULT_BIND,
+        *,
+        threads: int = 1,
+        context: zmq.Context[zmq.Socket[bytes]] | None = None,
+        socket_options: Mapping[int, int | bytes] | None = None,
+    ) -> None:
+        # Scene files first (cheap), so a name clash is reported before any model is loaded.
+        self._sources = list(scenes)  # kept so that a reload re-reads names and files
+        self._threads = threads
+        self.stats = Stats()
+        self.dispatcher = Dispatcher(_load_scenes(self._sources, threads), self.stats.snapshot)
+        self.bind = bind
+        self._context = context or zmq.Context.instance()
+        self._socket_options = dict(socket_options or {})
+        self._address: str | None = None
+        self._stop = threading.Event()
+        self._reload = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._bound = threading.Event()
+        self._start_error: BaseException | None = None
+
+    @property
+    def address(self) -> str:
+        """The endpoint actually bound (e.g. with the port chosen for ``:*``)."""
+        if self._address is None:
+            raise RuntimeError("the server is not bound yet: call start() or serve_forever()")
+        return self._address
+
+    @property
+    def scene_names(self) -> list[str]:
+        """Names of the hosted scenes."""
+        return list(self.dispatcher.scenes)
+
+    # -- running -----------------------------------------------------------------------------
+
+    def start(self) -> str:
+        """Serve in a background thread; returns the bound address once it is bound.
+
+        Raises:
+            OSError: The endpoint cannot be bound (in use, malformed, not permitted).
+        """
+        if self._thread is not None:
+            raise RuntimeError("the server is already running")
+        self._thread = threading.Thread(target=self._run_in_thread, name="membrane-server")
+        self._thread.daemon = True
+        self._thread.start()
+        if not self._bound.wait(_START_TIMEOUT_S):
+            self.stop()
+            raise OSError(f"the server did not bind {self.bind} within {_START_TIMEOUT_S} s")
+        if self._start_error is not None:
+            self._thread.join()
+            self._thread = None
+            raise self._start_error
+        return self.address
+
+    def serve_forever(self, on_bound: Callable[[str], None] | None = None) -> None:
+        """Bind and serve in the calling thread until ``request_stop()`` (or a signal).
+
+        Args:
+            on_bound: Called with the bound address once bound, before serving.
+
+        Raises:
+            OSError: The endpoint cannot be bound.
+        """
+        socket = self._bind_socket()
+        if on_bound is not None:
+            try:
+                on_bound(self.address)
+            except BaseException:
+                socket.close(linger=0)
+                raise
+        self._serve(socket)
+
+    def request_stop(self) -> None:
+        """Ask the loop to stop after the reply in flight. Safe from signal handlers and threads."""
+        self._stop.set()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop gracefully and wait for the background thread (if ``start()`` made one)."""
+        self.request_stop()
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            thread.join(timeout)
+            if thread.is_alive():
+                logger.warning("server thread still running %.1f s after stop", timeout)
+
+    def request_reload(self) -> None:
+        """Ask the loop to reload its scenes between two requests (what SIGHUP calls).
+
+        Scene files and models are read again and evaluators rebuilt while the socket stays
+        bound: clients are not dropped, their requests wait in the queue meanwhile. If the new
+        scenes fail to load, the old ones keep serving and the error is logged.
+        """
+        self._reload.set()
+
+    def reload(self) -> None:
+        """Reload the scenes now (from the serving thread, or before serving)."""
+        self._reload.clear()
+        try:
+            served = _load_scenes(self._sources, self._threads)
+        except Exception as exc:
+            logger.error("reload failed, still serving the previous scenes: %s", exc)
+            return
+        self.dispatcher = Dispatcher(served, self.stats.snapshot)
+        logger.info("reloaded scenes: %s", ", ".join(self.scene_names))
+
+    @property
+    def stopping(self) -> bool:
+        """True once a stop was requested."""
+        return self._stop.is_set()
+
+    def install_signal_handlers(self) -> None:
+        """SIGTERM and SIGINT stop the server gracefully, SIGHUP reloads its scenes.
+
+        Call from the main thread.
+        """
+
+        def _stop(signum: int, frame: FrameType | None) -> None:
+            logger.info("signal %s: stopping", signal.Signals(signum).name)
+            self.request_stop()
+
+        def _reload(signum: int, frame: FrameType | None) -> None:
+            logger.info("signal SIGHUP: reloading scenes")
+            self.request_reload()
+
+        signal.signal(signal.SIGTERM, _stop)
+        signal.signal(signal.SIGINT, _stop)
+        signal.signal(signal.SIGHUP, _reload)
+
+    def __enter__(self) -> Server:
+        self.start()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.stop()
+
+    # -- internals ---------------------------------------------------------------------------
+
+    def _run_in_thread(self) -> None:
+        try:
+            socket = self._bind_socket()
+        except BaseException as exc:  # handed to start(), which raises it in the caller
+            self._start_error = exc
+            self._bound.set()
+            return
+        self._bound.set()
+        try:
+            self._serve(socket)
+        except Exception:
+            logger.exception("server loop failed")
+
+    def _serve(self, socket: zmq.Socket[bytes]) -> None:
+        try:
+            self._loop(socket)
+        finally:
+            socket.close(linger=0)
+            requests = self.stats.requests
+            logger.info("server on %s stopped after %d requests", self._address, requests)
+
+    def _bind_socket(self) -> zmq.Socket[bytes]:
+        socket: zmq.Socket[bytes] = self._context.socket(zmq.ROUTER)
+        socket.setsockopt(zmq.LINGER, 0)
+        socket.setsockopt(zmq.MAXMSGSIZE, MAX_REQUEST_BYTES)
+        for option, value in self._socket_options.items():
+            socket.setsockopt(option, value)
+        try:
+            socket.bind(self.bind)
+        except zmq.ZMQError as exc:
+            socket.close(linger=0)
+            raise OSError(f"cannot bind {self.bind}: {exc}") from None
+        endpoint = socket.getsockopt(zmq.LAST_ENDPOINT)
+        self._address = endpoint.decode() if isinstance(endpoint, bytes) else str(endpoint)
+        logger.info("serving %s on %s", ", ".join(self.scene_names), self._address)
+        return socket
+
+    def _loop(self, socket: zmq.Socket[bytes]) -> None:
+        poller = zmq.Poller()
+        poller.register(socket, zmq.POLLIN)
+        while not self._stop.is_set():
+            if self._reload.is_set():
+                self.reload()
+            if not poller.poll(_POLL_MS):
+                continue
+            # Drain what is queued, checking the stop flag between requests.
+            while not self._stop.is_set():
+                try:
+                    frames = socket.recv_multipart(zmq.NOBLOCK)
+                except zmq.Again:
+                    break
+                self._answer(socket, frames, time.perf_counter())
+
+    def _answer(self, socket: zmq.Socket[bytes], frames: list[bytes], received: float) -> None:
+        # ROUTER frames: [peer identity, (empty delimiter from REQ/DEALER-as-REQ), payload...].
+        envelope, body = frames[:1], frames[1:]
+        if body and body[0] == b"":
+            envelope, body = frames[:2], frames[2:]
+        answer = self.dispatcher.handle(body)
+        try:
+            socket.send_multipart([*envelope, answer.reply], zmq.NOBLOCK)
+        except zmq.Again:  # the peer is not reading: drop its reply, never wait for it
+            logger.debug("reply dropped: peer not ready")
+        except zmq.ZMQError as exc:
+            logger.warning("reply not sent: %s", exc)
+        self.stats.record(
+            time.perf_counter() - received, answer.op, answer.error, answer.scene, answer.session
+        )
+
+
+def _load_scenes(
+    sources: Iterable[ServedScene | Scene | str | Path], threads: int
+) -> list[ServedScene]:
+    """Validate every scene file first (cheap, so a name clash shows before any model loads),
+    then load models and build evaluators."""
+    specs = [s if isinstance(s, ServedScene | Scene) else load_scene(s) for s in sources]
+    names = [spec.name for spec in specs]
+    if len(set(names)) != len(names):
+        raise ValueError(f"scene names must be distinct, got {names}")
+    return [s if isinstance(s, ServedScene) else ServedScene.load(s, threads) for s in specs]

@@ -1,0 +1,94 @@
+"""Server-side counters and latency percentiles (the ``stats`` op).
+
+Latency is measured from receiving a request to handing its reply to ZeroMQ, kept for the last
+``window`` requests in a ring buffer; percentiles are computed only when asked for.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter, OrderedDict
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Stats"]
+
+
+class Stats:
+    """Counts by op, error code and scene; distinct sessions; a window of latencies.
+
+    Args:
+        window: How many of the latest latencies the percentiles cover.
+        max_sessions: How many session ids are remembered (least recently seen are forgotten).
+    """
+
+    def __init__(self, window: int = 100_000, max_sessions: int = 10_000) -> None:
+        self.started = time.monotonic()
+        self.requests = 0
+        self.ops: Counter[str] = Counter()
+        self.errors: Counter[str] = Counter()
+        self.scenes: Counter[str] = Counter()
+        self._sessions: OrderedDict[str, None] = OrderedDict()
+        self._max_sessions = max_sessions
+        self._latencies = np.zeros(window, dtype=np.float64)
+        self._latency_count = 0
+
+    def record(
+        self,
+        seconds: float,
+        op: str | None = None,
+        error: str | None = None,
+        scene: str | None = None,
+        session: str | None = None,
+    ) -> None:
+        """Account for one answered request."""
+        self.requests += 1
+        self._latencies[self._latency_count % self._latencies.size] = seconds
+        self._latency_count += 1
+        if op is not None:
+            self.ops[op] += 1
+        if error is not None:
+            self.errors[error] += 1
+        elif scene is not None and op == "query":
+            self.scenes[scene] += 1
+        if session is not None:
+            self._sessions[session] = None
+            self._sessions.move_to_end(session)
+            if len(self._sessions) > self._max_sessions:
+                self._sessions.popitem(last=False)
+
+    @property
+    def sessions(self) -> int:
+        """Distinct session ids remembered."""
+        return len(self._sessions)
+
+    def latency_us(self) -> dict[str, float | int]:
+        """Percentiles of the latency window, in microseconds."""
+        count = min(self._latency_count, self._latencies.size)
+        if count == 0:
+            return {"count": 0, "window": int(self._latencies.size)}
+        micros = self._latencies[:count] * 1e6
+        p50, p90, p99, p999 = np.percentile(micros, [50.0, 90.0, 99.0, 99.9])
+        return {
+            "count": count,
+            "window": int(self._latencies.size),
+            "p50": float(p50),
+            "p90": float(p90),
+            "p99": float(p99),
+            "p999": float(p999),
+            "max": float(micros.max()),
+            "mean": float(micros.mean()),
+        }
+
+    def snapshot(self) -> dict[str, Any]:
+        """Everything, as plain data for the ``stats`` reply."""
+        return {
+            "uptime_s": time.monotonic() - self.started,
+            "requests": self.requests,
+            "errors": dict(self.errors),
+            "ops": dict(self.ops),
+            "scenes": dict(self.scenes),
+            "sessions": self.sessions,
+            "latency_us": self.latency_us(),
+        }

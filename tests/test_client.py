@@ -1,0 +1,294 @@
+"""The thin client: frames and geometry, typed errors, Lazy Pirate, clean exit, light imports."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import pytest
+import zmq
+from membrane_client import (
+    Client,
+    Frame,
+    MembraneError,
+    ProtocolError,
+    SceneInfo,
+    ServerError,
+    Timeout,
+)
+from membrane_client.protocol import decode, encode, ok_reply
+from membrane_server.server import Server
+
+
+class ScriptedServer:
+    """A ROUTER on loopback that answers each request as a script says (for fault tests).
+
+    ``script(index, request) -> bytes | None``: the reply payload, or None to stay silent.
+    """
+
+    def __init__(self, script: Any) -> None:
+        self._socket: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.ROUTER)
+        self._socket.setsockopt(zmq.LINGER, 0)
+        port: int = self._socket.bind_to_random_port("tcp://127.0.0.1")
+        self.address = f"tcp://127.0.0.1:{port}"
+        self.received: list[dict[str, Any]] = []
+        self._script = script
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        poller = zmq.Poller()
+        poller.register(self._socket, zmq.POLLIN)
+        while not self._stop.is_set():
+            if not poller.poll(20):
+                continue
+            identity, empty, payload = self._socket.recv_multipart()
+            message = decode(payload)
+            reply = self._script(len(self.received), message)
+            self.received.append(message)
+            if reply is not None:
+                self._socket.send_multipart([identity, empty, reply])
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+        self._socket.close(linger=0)
+
+
+@pytest.fixture
+def scripted() -> Iterator[Any]:
+    servers: list[ScriptedServer] = []
+
+    def make(script: Any) -> ScriptedServer:
+        servers.append(ScriptedServer(script))
+        return servers[-1]
+
+    yield make
+    for server in servers:
+        server.close()
+
+
+def pong(message: dict[str, Any]) -> bytes:
+    return encode(ok_reply(message["id"], pong=True, time=0.0))
+
+
+# -- frames and geometry ----------------------------------------------------------------------
+
+
+def test_query_returns_a_frame_shaped_like_the_lattice(membrane_server: Server) -> None:
+    with Client(membrane_server.address, timeout=5.0) as client:
+        frame = client.query(0.5)
+    assert isinstance(frame, Frame)
+    assert (frame.scene, frame.step, frame.t, frame.requested_t) == ("membrane", 50, 0.5, 0.5)
+    assert frame.z.shape == (20, 20)
+    assert frame.z.dtype == np.float32
+    assert not frame.z.flags.writeable
+
+
+def test_positions_are_rest_plus_scaled_displacement(membrane_server: Server) -> None:
+    with Client(membrane_server.address, timeout=5.0) as client:
+        info = client.describe()
+        frame = client.query(0.5)
+    assert isinstance(info, SceneInfo)
+    rest = info.rest_positions()
+    assert rest.shape == (400, 3)
+    np.testing.assert_allclose(rest[:, :2], info.points)  # size 1, origin (0, 0, 1)
+    np.testing.assert_allclose(rest[:, 2], 1.0)
+    positions = frame.positions()
+    np.testing.assert_allclose(positions[:, :2], rest[:, :2])
+    z = frame.z.reshape(-1).astype(np.float64)
+    np.testing.assert_allclose(positions[:, 2], 1.0 + 100.0 * z)
+    assert np.abs(positions[:, 2] - 1.0).max() > 0.01  # visibly displaced at t = 0.5
+
+
+def test_placement_axis_size_and_origin(start_server: Any, make_scene: Any) -> None:
+    placement = {"origin": [1.0, 2.0, 3.0], "size": 2.0, "scale": -10.0, "axis": "y"}
+    scene = make_scene(
+        "membrane-forced", "exact", name="s", lattice={"nx": 3, "ny": 2}, placement=placement
+    )
+    server = start_server([scene])
+    with Client(server.address, timeout=5.0) as client:
+        info = client.describe()
+        frame = client.query(0.5)
+    assert (info.axis, info.size, info.scale) == ("y", 2.0, -10.0)
+    rest = info.rest_positions()
+    # Axis y: lattice x runs along world x, lattice y along world z.
+    np.testing.assert_allclose(rest[:, 0], 1.0 + 2.0 * info.points[:, 0])
+    np.testing.assert_allclose(rest[:, 1], 2.0)
+    np.testing.assert_allclose(rest[:, 2], 3.0 + 2.0 * info.points[:, 1])
+    moved = frame.positions()
+    np.testing.assert_allclose(moved[:, 1], 2.0 - 10.0 * frame.z.reshape(-1).astype(np.float64))
+    np.testing.assert_array_equal(moved[:, [0, 2]], rest[:, [0, 2]])
+
+
+def test_rope_geometry(start_server: Any) -> None:
+    server = start_server(["rope"])
+    with Client(server.address, timeout=5.0) as client:
+        info = client.describe()
+    assert info.shape == (100,)
+    rest = info.rest_positions()
+    np.testing.assert_allclose(rest[:, 0], np.linspace(0.0, 1.0, 100))
+    np.testing.assert_allclose(rest[:, 1:], [[0.0, 1.0]] * 100)
+    np.testing.assert_allclose(info.times()[[0, -1]], [0.0, 1.0])
+
+
+def test_float64_query(membrane_server: Server) -> None:
+    with Client(membrane_server.address, timeout=5.0) as client:
+        single = client.query(0.5)
+        double = client.query(0.5, dtype="<f8")
+    assert double.z.dtype == np.float64
+    np.testing.assert_array_equal(double.z.astype(np.float32), single.z)
+
+
+def test_describe_is_cached_per_scene(membrane_server: Server) -> None:
+    with Client(membrane_server.address, timeout=5.0) as client:
+        first = client.describe()
+        assert client.describe() is first
+        assert client.describe(refresh=True) is not first
+
+
+# -- errors -----------------------------------------------------------------------------------
+
+
+def test_server_error_carries_the_code(membrane_server: Server) -> None:
+    with Client(membrane_server.address, timeout=5.0, scene="nope") as client:
+        with pytest.raises(ServerError) as caught:
+            client.describe()
+        assert caught.value.code == "unknown_scene"
+        assert isinstance(caught.value, MembraneError)
+        assert client.ping() > 0  # the client is still usable
+
+
+def test_timeout_when_nobody_answers(scripted: Any) -> None:
+    server = scripted(lambda index, message: None)
+    with Client(server.address, timeout=0.2) as client:
+        started = time.monotonic()
+        with pytest.raises(Timeout, match="no reply"):
+            client.ping()
+        assert time.monotonic() - started < 2.0
+
+
+def test_lazy_pirate_retries_on_a_fresh_socket(scripted: Any) -> None:
+    # Silent to the first request, answers the second: one retry recovers.
+    server = scripted(lambda index, message: None if index == 0 else pong(message))
+    with Client(server.address, timeout=0.2, retries=1) as client:
+        assert client.ping() > 0
+    assert len(server.received) == 2
+    assert server.received[0]["id"] == server.received[1]["id"]  # the same request, re-sent
+
+
+def test_bounded_retries_then_timeout(scripted: Any) -> None:
+    server = scripted(lambda index, message: None)
+    with Client(server.address, timeout=0.1, retries=2) as client, pytest.raises(Timeout):
+        client.ping()
+    assert len(server.received) == 3
+
+
+def test_after_a_timeout_the_next_request_works(scripted: Any) -> None:
+    server = scripted(lambda index, message: None if index == 0 else pong(message))
+    with Client(server.address, timeout=0.2) as client:
+        with pytest.raises(Timeout):
+            client.ping()
+        assert client.ping() > 0  # a fresh socket: a reused REQ socket would raise EFSM
+
+
+def test_garbage_reply_is_a_protocol_error(scripted: Any) -> None:
+    server = scripted(lambda index, message: b"\xc1\xc1" if index == 0 else pong(message))
+    with Client(server.address, timeout=1.0) as client:
+        with pytest.raises(ProtocolError):
+            client.ping()
+        assert client.ping() > 0
+
+
+def test_reply_to_another_request_is_a_protocol_error(scripted: Any) -> None:
+    server = scripted(lambda index, message: encode(ok_reply(message["id"] + 1)))
+    with Client(server.address, timeout=1.0) as client, pytest.raises(ProtocolError):
+        client.ping()
+
+
+def test_session_id_is_sent_and_stable(scripted: Any) -> None:
+    server = scripted(lambda index, message: None if index == 0 else pong(message))
+    with Client(server.address, timeout=0.2, retries=1, session="abc") as client:
+        client.ping()
+        client.ping()
+    assert {m["session"] for m in server.received} == {"abc"}
+
+
+def test_closed_client_refuses_requests(membrane_server: Server) -> None:
+    client = Client(membrane_server.address)
+    client.close()
+    client.close()  # twice is fine
+    assert client.closed
+    with pytest.raises(MembraneError, match="closed"):
+        client.ping()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"address": "not an endpoint"}, "cannot connect"),
+        ({"timeout": 0.0}, "timeout"),
+        ({"retries": -1}, "retries"),
+    ],
+)
+def test_bad_arguments_are_value_errors(kwargs: dict[str, Any], match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        Client(**kwargs)
+
+
+def test_frame_without_info_has_no_positions() -> None:
+    frame = Frame(t=0.0, step=0, z=np.zeros(3, np.float32), requested_t=0.0, domain="inside",
+                  scene="s")  # fmt: skip
+    with pytest.raises(ValueError, match="describe"):
+        frame.positions()
+
+
+# -- process-level behaviour ------------------------------------------------------------------
+
+
+def test_exit_after_a_timeout_never_hangs(scripted: Any) -> None:
+    server = scripted(lambda index, message: None)
+    code = (
+        "from membrane_client import Client, Timeout\n"
+        f"client = Client({server.address!r}, timeout=0.2)\n"
+        "try:\n    client.ping()\nexcept Timeout:\n    print('timed out')\n"
+        "second = Client('tcp://127.0.0.1:9', timeout=0.2)\n"  # left open on purpose
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=20
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "timed out"
+
+
+def test_client_imports_no_server_side_libraries() -> None:
+    code = (
+        "import sys, membrane_client, membrane_client.cli\n"
+        "heavy = {'onnxruntime', 'torch', 'pydantic', 'scipy', 'membrane_server'}\n"
+        "print(sorted(heavy & {m.split('.')[0] for m in sys.modules}))\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "[]"
+
+
+def test_server_imports_no_torch() -> None:
+    code = (
+        "import sys, membrane_server.server, membrane_server.dispatch\n"
+        "from membrane_server.dispatch import ServedScene\n"
+        "ServedScene.load('rope')\n"
+        "print('torch' in sys.modules)\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "False"
