@@ -16,10 +16,24 @@ from membrane_models.problems import (
 
 __all__ = [
     "PROBLEMS",
+    "ExactSolution",
     "InvalidProblem",
     "MembraneForced",
     "Problem",
     "StringForced",
     "StringPlucked",
+    "exact_solution",
     "make_problem",
 ]
+
+# The exact solutions need scipy (the `server` extra); they load on first use so that importing
+# the package (the `membrane` command does) works with the core dependencies alone.
+_LAZY = {"ExactSolution": "membrane_models.exact", "exact_solution": "membrane_models.exact"}
+
+
+def __getattr__(name: str) -> object:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'membrane_models' has no attribute {name!r}")

@@ -45,6 +45,8 @@ def time_bump(t: ArrayLike, a: float) -> FloatArray:
     inside = (t >= 0.0) & (t <= 1.0)
     tc = np.where(inside, t, 0.5)  # keeps the powers finite where the mask is off
     # Computed through logs: 4^a overflows nothing, but t^(a-1) underflows gracefully this way.
+    if a == 1.0:  # t^0 (1-t)^0 = 1, also at the ends (where 0 * log 0 would give NaN)
+        return np.where(inside, 4.0, 0.0)
     with np.errstate(divide="ignore"):
         log_g = a * math.log(4.0) + (a - 1.0) * (np.log(tc) + np.log1p(-tc))
     return np.where(inside, np.exp(log_g), 0.0)
@@ -241,4 +243,5 @@ def make_problem(name: str, overrides: dict[str, str] | None = None) -> Problem:
         raise InvalidProblem(
             f"unknown problem {name!r}; known: {', '.join(sorted(PROBLEMS))}"
         ) from None
-    return cls().with_overrides({**defaults, **(overrides or {})})
+    default = cls()  # type: ignore[call-arg]  # every registered class defaults all its fields
+    return default.with_overrides({**defaults, **(overrides or {})})

@@ -1,0 +1,48 @@
+"""Exact reference solutions: one entry point for every problem.
+
+``exact_solution(problem, rtol)`` returns an ``ExactSolution`` (see ``solution``):
+
+- forced string and membrane: the sine-mode series with exact Duhamel integrals (``modal``),
+  its modes chosen from the force's spectrum so that the stated relative truncation error is at
+  most ``rtol``;
+- plucked string (kinked or smoothed): d'Alembert's closed form (``plucked``), exact to rounding.
+  Its Fourier series, ``PluckedFourier``, is the independent cross-check.
+"""
+
+from __future__ import annotations
+
+from membrane_models.modal import ForcedModalSolution, forced_modal_solution
+from membrane_models.plucked import PluckedDAlembert, PluckedFourier
+from membrane_models.problems import MembraneForced, Problem, StringForced, StringPlucked
+from membrane_models.solution import ExactSolution, FrameFunction, InvalidQuery
+
+__all__ = [
+    "DEFAULT_RTOL",
+    "ExactSolution",
+    "ForcedModalSolution",
+    "FrameFunction",
+    "InvalidQuery",
+    "PluckedDAlembert",
+    "PluckedFourier",
+    "exact_solution",
+]
+
+DEFAULT_RTOL = 1e-10
+
+
+def exact_solution(problem: Problem, rtol: float = DEFAULT_RTOL) -> ExactSolution:
+    """The exact solution of ``problem``, series truncated at relative error ``rtol``.
+
+    Args:
+        problem: any registered problem (see ``problems.make_problem``).
+        rtol: bound on the relative truncation error of series solutions (ignored by the
+            closed forms, which are exact).
+
+    Raises:
+        ValueError: rtol not a positive number, or a problem type without an exact solution.
+    """
+    if isinstance(problem, StringForced | MembraneForced):
+        return forced_modal_solution(problem, rtol)
+    if isinstance(problem, StringPlucked):
+        return PluckedDAlembert(problem)
+    raise ValueError(f"no exact solution for {type(problem).__name__}")
