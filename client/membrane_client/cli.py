@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from membrane_client.client import DEFAULT_ADDRESS, Client
+from membrane_client.curve import SocketOptions, client_socket_options
 from membrane_client.errors import MembraneError, ServerError
 from membrane_client.frame import Frame
 from membrane_client.protocol import ErrorCode
@@ -70,12 +71,25 @@ def _add_connection_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--timeout", type=float, default=2.0, metavar="S", help="seconds to wait (default 2)"
     )
+    parser.add_argument(
+        "--curve-server-key",
+        metavar="FILE",
+        help="CurveZMQ: the server's public .key file (with --curve-secret)",
+    )
+    parser.add_argument(
+        "--curve-secret",
+        metavar="FILE",
+        help="CurveZMQ: this client's .key_secret file (with --curve-server-key)",
+    )
 
 
 def _run_query(args: argparse.Namespace) -> int:
     _check_timeout(args.timeout)
+    options = _curve_options(args)
     try:
-        with Client(args.connect, timeout=args.timeout, scene=args.scene) as client:
+        with Client(
+            args.connect, timeout=args.timeout, scene=args.scene, socket_options=options
+        ) as client:
             frame = client.query(args.t, dtype="<f8" if args.float64 else "<f4")
     except MembraneError as exc:
         return _report_failure("query", exc)
@@ -85,8 +99,9 @@ def _run_query(args: argparse.Namespace) -> int:
 
 def _run_ping(args: argparse.Namespace) -> int:
     _check_timeout(args.timeout)
+    options = _curve_options(args)
     try:
-        with Client(args.connect, timeout=args.timeout) as client:
+        with Client(args.connect, timeout=args.timeout, socket_options=options) as client:
             seconds = client.ping()
             hello = client.hello()
     except MembraneError as exc:
@@ -137,6 +152,17 @@ def _check_timeout(timeout: float) -> None:
 
     if not timeout > 0:
         raise UsageError(f"--timeout must be > 0 seconds, got {timeout}")
+
+
+def _curve_options(args: argparse.Namespace) -> SocketOptions | None:
+    """CurveZMQ socket options from --curve-server-key/--curve-secret (None without them)."""
+    from membrane_client.commands import UsageError
+
+    if (args.curve_server_key is None) != (args.curve_secret is None):
+        raise UsageError("--curve-server-key and --curve-secret go together")
+    if args.curve_server_key is None:
+        return None
+    return client_socket_options(args.curve_server_key, args.curve_secret)  # CurveError: exit 2
 
 
 def _report_failure(command: str, exc: MembraneError) -> int:

@@ -7,10 +7,19 @@ imported by the handler, so a client-only install still lists the command.
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # annotations only: importing these at run time is the handler's job
+    import zmq
+
+    from membrane_server.security import CurveAuthenticator
 
 __all__ = ["add_serve"]
+
+logger = logging.getLogger(__name__)
 
 DEFAULT_BIND = "tcp://127.0.0.1:5555"
 
@@ -49,6 +58,16 @@ def add_serve(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
         "--pidfile", metavar="FILE", help="with --daemon: pidfile, locked while the server runs"
     )
     parser.add_argument("--logfile", metavar="FILE", help="with --daemon: append logs here")
+    parser.add_argument(
+        "--curve-secret",
+        metavar="FILE",
+        help="CurveZMQ: the server's .key_secret file (encrypt; with --curve-clients)",
+    )
+    parser.add_argument(
+        "--curve-clients",
+        metavar="DIR",
+        help="CurveZMQ: directory of the allowed clients' public .key files",
+    )
     parser.set_defaults(handler=_run_serve)
 
 
@@ -59,29 +78,98 @@ def _run_serve(args: argparse.Namespace) -> int:
         raise UsageError(f"--threads must be >= 1, got {args.threads}")
     if (args.pidfile or args.logfile) and not args.daemon:
         raise UsageError("--pidfile and --logfile go with --daemon")
+    if (args.curve_secret is None) != (args.curve_clients is None):
+        raise UsageError("--curve-secret and --curve-clients go together")
+    _check_curve_keys(args)  # before detaching, so that a bad key is reported here
+    _make_paths_absolute(args)
     scenes = args.scene or ["membrane"]
     if not args.daemon:
-        return _serve(scenes, args.bind, args.threads, notify_ready=None)
+        return _serve(scenes, args, notify_ready=None)
     return _serve_detached(scenes, args)
 
 
+def _make_paths_absolute(args: argparse.Namespace) -> None:
+    """Resolve file arguments against the current directory: a daemon runs from /."""
+    from pathlib import Path
+
+    def absolute(text: str) -> str:
+        path = Path(text)
+        is_file = path.suffix == ".toml" or "/" in text or path.is_file()  # as load_scene
+        return str(path.resolve()) if is_file else text  # a built-in scene name stays
+
+    if args.scene:
+        args.scene = [absolute(scene) for scene in args.scene]
+    for name in ("curve_secret", "curve_clients"):
+        if getattr(args, name) is not None:
+            setattr(args, name, str(Path(getattr(args, name)).resolve()))
+
+
+def _check_curve_keys(args: argparse.Namespace) -> None:
+    if args.curve_secret is None:
+        return
+    from membrane_server.security import CurveAuthenticator, server_socket_options
+
+    server_socket_options(args.curve_secret)
+    CurveAuthenticator(args.curve_clients)  # checks the directory; starts nothing
+
+
 def _serve(
-    scenes: list[str], bind: str, threads: int, notify_ready: Callable[[str], None] | None
+    scenes: list[str], args: argparse.Namespace, notify_ready: Callable[[str], None] | None
 ) -> int:
-    from membrane_server.server import Server
+    import zmq
 
-    server = Server(scenes, bind=bind, threads=threads)
-    server.install_signal_handlers()
+    from membrane_server.server import SHUTDOWN_LINGER_MS, Server
 
-    def announce(address: str) -> None:
-        names = ", ".join(server.scene_names)
-        print(f"membrane serve: listening on {address} (scenes: {names})", flush=True)
-        if notify_ready is not None:
-            notify_ready(address)
+    # A context of our own, created here (after any fork) and terminated at the end: terminating
+    # it is what lets the last replies leave before the process exits.
+    context: zmq.Context[zmq.Socket[bytes]] = zmq.Context()
+    authenticator: CurveAuthenticator | None = None
+    try:
+        options, authenticator = _secure(args, context)
+        server = Server(
+            scenes, bind=args.bind, threads=args.threads, context=context, socket_options=options
+        )
+        server.install_signal_handlers()
 
-    server.serve_forever(on_bound=announce)
+        def announce(address: str) -> None:
+            names = ", ".join(server.scene_names)
+            secured = ", CurveZMQ" if authenticator is not None else ""
+            print(f"membrane serve: listening on {address} (scenes: {names}{secured})", flush=True)
+            if notify_ready is not None:
+                notify_ready(address)
+
+        server.serve_forever(on_bound=announce)
+    finally:
+        if authenticator is not None:
+            authenticator.stop()
+        context.destroy(linger=SHUTDOWN_LINGER_MS)
     print("membrane serve: stopped", file=sys.stderr, flush=True)
     return 0
+
+
+def _secure(
+    args: argparse.Namespace, context: zmq.Context[zmq.Socket[bytes]]
+) -> tuple[dict[int, int | bytes], CurveAuthenticator | None]:
+    """CurveZMQ socket options and a started authenticator, or none (with a warning when the
+    bind reaches beyond this machine)."""
+    from membrane_server.security import (
+        CurveAuthenticator,
+        is_loopback_endpoint,
+        server_socket_options,
+    )
+
+    if args.curve_secret is None:
+        if not is_loopback_endpoint(args.bind):
+            logger.warning(
+                "serving %s without CurveZMQ: anyone who can reach it can query "
+                "(see --curve-secret, --curve-clients)",
+                args.bind,
+            )
+        return {}, None
+    options = server_socket_options(args.curve_secret)
+    authenticator = CurveAuthenticator(args.curve_clients, context)
+    authenticator.start()
+    return options, authenticator
 
 
 def _serve_detached(scenes: list[str], args: argparse.Namespace) -> int:
@@ -93,7 +181,7 @@ def _serve_detached(scenes: list[str], args: argparse.Namespace) -> int:
         load_scene(scene)
     try:
         code = run_detached(
-            lambda notify: _serve(scenes, args.bind, args.threads, notify),
+            lambda notify: _serve(scenes, args, notify),
             pidfile=args.pidfile,
             logfile=args.logfile,
         )

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from membrane_client.errors import ProtocolError
 from membrane_client.protocol import (
     ARRAY_DTYPES,
@@ -32,7 +33,6 @@ from membrane_client.protocol import (
     ok_reply,
     pack_array,
 )
-
 from membrane_server.evaluators import Evaluator, build_evaluator
 from membrane_server.scene import Scene, load_scene
 from membrane_server.source import ModelSource, resolve_source

@@ -25,8 +25,8 @@ from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
-from membrane_models.problems import Problem
 
+from membrane_models.problems import Problem
 from membrane_server.runtime import GraphRunner, load_graph
 from membrane_server.scene import Scene, SceneError
 from membrane_server.source import ModelSource, resolve_source

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 import onnxruntime as ort
-from membrane_models.manifest import Manifest
 
+from membrane_models.manifest import Manifest
 from membrane_server.scene import SceneError
 
 __all__ = ["GraphRunner", "load_graph", "session_options"]

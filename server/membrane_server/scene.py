@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from membrane_client.protocol import MAX_LATTICE_POINTS
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -24,6 +23,8 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+
+from membrane_client.protocol import MAX_LATTICE_POINTS
 
 __all__ = [
     "DEFAULT_TABLE_MAX_BYTES",

@@ -26,7 +26,7 @@ from membrane_server.dispatch import Dispatcher, ServedScene
 from membrane_server.scene import Scene, load_scene
 from membrane_server.stats import Stats
 
-__all__ = ["DEFAULT_BIND", "Server"]
+__all__ = ["DEFAULT_BIND", "SHUTDOWN_LINGER_MS", "Server"]
 
 DEFAULT_BIND = "tcp://127.0.0.1:5555"
 
@@ -34,6 +34,9 @@ logger = logging.getLogger(__name__)
 
 # How long the loop waits for a request before it looks at the stop flag again.
 _POLL_MS = 50
+# At shutdown, how long replies already handed to ZeroMQ may take to leave (a large reply to a
+# slow reader needs many TCP round trips); bounded, so a stuck peer cannot hold the stop.
+SHUTDOWN_LINGER_MS = 1000
 _START_TIMEOUT_S = 10.0
 
 
@@ -216,7 +219,7 @@ class Server:
         try:
             self._loop(socket)
         finally:
-            socket.close(linger=0)
+            socket.close(linger=SHUTDOWN_LINGER_MS)  # the reply in flight still goes out
             requests = self.stats.requests
             logger.info("server on %s stopped after %d requests", self._address, requests)
 

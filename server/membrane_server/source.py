@@ -8,7 +8,6 @@ from typing import Any
 from membrane_models.manifest import Manifest
 from membrane_models.problems import PROBLEMS, Problem, make_problem
 from membrane_models.zoo_index import list_models, resolve_model
-
 from membrane_server.scene import Scene, SceneError
 
 __all__ = ["ModelSource", "resolve_source"]
