@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from membrane_client import Client
 from membrane_client.coppelia import (
     BATCHED,

@@ -19,8 +19,9 @@ from pathlib import Path
 import numpy as np
 import onnx
 import onnxruntime as ort
-from membrane_server.runtime import session_options
 from onnx import TensorProto, helper, numpy_helper
+
+from membrane_server.runtime import session_options
 
 
 def build_mlp(path: Path, widths: list[int], seed: int = 0) -> None:

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from membrane_client import Client, Frame, SceneInfo
 
 logger = logging.getLogger("demo")

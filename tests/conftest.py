@@ -21,10 +21,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from onnx_graphs import TestModel, build_test_model
+
 from membrane_server.dispatch import ServedScene
 from membrane_server.scene import Scene, scene_from_dict
 from membrane_server.server import Server
-from onnx_graphs import TestModel, build_test_model
 
 LOOPBACK_ANY_PORT = "tcp://127.0.0.1:*"
 

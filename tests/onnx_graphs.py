@@ -18,9 +18,10 @@ from pathlib import Path
 
 import numpy as np
 import onnx
+from onnx import TensorProto, helper, numpy_helper
+
 from membrane_models.manifest import GraphFile, Manifest, sha256_of
 from membrane_models.problems import make_problem
-from onnx import TensorProto, helper, numpy_helper
 
 __all__ = ["TestModel", "build_test_model", "reference_full"]
 

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 import zmq
+
 from membrane_client import (
     Client,
     Frame,

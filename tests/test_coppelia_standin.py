@@ -15,6 +15,7 @@ import zmq
 
 pytest.importorskip("coppeliasim_zmqremoteapi_client")
 from coppeliasim_zmqremoteapi_client import RemoteAPIClient
+
 from membrane_client.coppelia_lua import BATCH_FUNCTION, BATCH_SCRIPT
 from membrane_client.coppelia_standin import SIM_CONSTANTS, CoppeliaStandin
 

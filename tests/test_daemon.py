@@ -1,4 +1,4 @@
-"""`membrane serve --daemon`: detach, pidfile, refuse a second start, SIGHUP reload, SIGTERM stop."""
+"""`membrane serve --daemon`: detach, pidfile, refusing a second start, SIGHUP reload, SIGTERM."""
 
 from __future__ import annotations
 

@@ -9,6 +9,8 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 import pytest
+from onnx_graphs import reference_full
+
 from membrane_models.exact import exact_solution
 from membrane_models.manifest import ManifestError
 from membrane_models.problems import make_problem
@@ -20,7 +22,6 @@ from membrane_server.evaluators import (
     build_evaluator,
 )
 from membrane_server.scene import SceneError
-from onnx_graphs import reference_full
 
 GRID_TIMES = [0.0, 0.01, 0.25, 0.5, 0.73, 1.0]
 

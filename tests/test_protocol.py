@@ -12,6 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
+
 from membrane_client.errors import ProtocolError, ServerError
 from membrane_client.protocol import (
     PROTOCOL_VERSION,

@@ -6,9 +6,10 @@ import math
 from pathlib import Path
 from typing import Any
 
-import membrane_server.source
 import numpy as np
 import pytest
+
+import membrane_server.source
 from membrane_client.protocol import MAX_LATTICE_POINTS
 from membrane_server.scene import (
     Scene,

@@ -18,6 +18,7 @@ import msgpack
 import numpy as np
 import pytest
 import zmq
+
 from membrane_client import Client, ServerError, Timeout
 from membrane_client.commands import main as membrane_main
 from membrane_client.protocol import MAX_REQUEST_BYTES, decode, encode, request, unpack_array

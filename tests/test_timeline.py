@@ -7,6 +7,7 @@ import math
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from membrane_client.protocol import Domain
 from membrane_server.timeline import OutOfDomain, Timeline
 

@@ -133,7 +133,9 @@ class Manifest:
         try:
             fmt = int(data.get("format", MANIFEST_FORMAT))
             if fmt != MANIFEST_FORMAT:
-                raise ManifestError(f"manifest format {fmt} unsupported (expected {MANIFEST_FORMAT})")
+                raise ManifestError(
+                    f"manifest format {fmt} unsupported (expected {MANIFEST_FORMAT})"
+                )
             graphs = {role: GraphFile(**g) for role, g in data["graphs"].items()}
             manifest = cls(
                 name=str(data["name"]),

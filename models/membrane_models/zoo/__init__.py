@@ -1,1 +1,4 @@
-"""Shipped models: ONNX graphs and their manifests (package data). See membrane_models.zoo_index for lookup."""
+"""Shipped models: ONNX graphs and their manifests (package data).
+
+Look them up with membrane_models.zoo_index.
+"""
