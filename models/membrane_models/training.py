@@ -1,0 +1,652 @@
+"""Physics-informed training: recipes, collocation, the residual loss, the loop, checkpoints.
+
+The loss is the PDE residual alone for our recipes (boundary and initial conditions are exact by
+construction, see ``transforms``), plus initial-condition terms for the published configuration,
+which enforces them softly. No solution data enters the loss.
+
+The residual is evaluated on a Cartesian collocation grid (per-axis stratified random points,
+resampled every Adam step): for a separable model u = A @ B^T on the grid, so u_tt = A @ B''^T
+and Laplacian(u) = Lap(A) @ B^T cost one small matrix product each. The L-BFGS phase uses one
+fixed, finer grid (L-BFGS needs a fixed objective).
+
+Checkpoints are ``torch.save`` of tensors and plain data only, loadable with ``weights_only``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from membrane_models.networks import build_core
+from membrane_models.problems import Problem, StringPlucked, make_problem, time_bump
+from membrane_models.transforms import TIME_BUMP_PEAK, PhysicalModel, characteristic_amplitude
+
+__all__ = [
+    "CHECKPOINT_FORMAT",
+    "RECIPES",
+    "TrainConfig",
+    "TrainResult",
+    "build_model",
+    "load_checkpoint",
+    "model_from_checkpoint",
+    "recipe",
+    "train",
+]
+
+logger = logging.getLogger(__name__)
+
+CHECKPOINT_FORMAT = 1
+Monitor = Callable[[PhysicalModel], dict[str, float]]
+
+
+@dataclass
+class TrainConfig:
+    """Everything that determines a training run (with the seed, the run is deterministic).
+
+    Attributes:
+        problem: Registry name of the problem.
+        overrides: Problem parameter overrides, NAME -> value as typed.
+        arch: Network config for ``networks.build_core`` (``seed`` is filled from ``seed``).
+        iterations: Total optimiser iterations (Adam first, then L-BFGS).
+        lbfgs_fraction: Share of the iterations done by L-BFGS at the end (0 for Adam only).
+        lr: Adam's initial learning rate.
+        lr_final: Adam's learning rate at its last step (exponential decay in between);
+            None for the published inverse-time decay (0.9 every 2000 steps).
+        space_points: Collocation points per space axis for Adam (grid) or in all (scattered).
+        time_points: Collocation points on the time axis for Adam (grid mode).
+        lbfgs_space_points: Fixed grid for L-BFGS, per space axis.
+        lbfgs_time_points: Fixed grid for L-BFGS, time axis.
+        lbfgs_resample_every: L-BFGS iterations between fresh grids (and a fresh curvature
+            history), so that it cannot fit one grid at the expense of the points in between.
+        modal_modes: Add the ``modal`` loss term with this many sine modes per space axis
+            (0: off; grid sampling only). See ``modal_term``.
+        scattered: Sample scattered (x, t) points instead of a grid (the published sampling).
+        initial_points: Points for the soft initial-condition terms (when not hard).
+        hard_initial: Enforce u = u_t = 0 at t = 0 by the output transform.
+        output_scaling: Scale outputs by the characteristic amplitude and the residual by the
+            force's peak (False reproduces the published, unscaled training).
+        seed: Seeds the weights, the Fourier frequencies and the collocation sampler.
+        dtype: "float64" or "float32" for training (export is float32 either way).
+        checkpoint_every: Iterations between checkpoints.
+        monitor_every: Iterations between calls of the monitor (0: never).
+    """
+
+    problem: str
+    overrides: dict[str, str] = field(default_factory=dict)
+    arch: dict[str, Any] = field(default_factory=dict)
+    iterations: int = 10000
+    lbfgs_fraction: float = 0.2
+    lr: float = 1e-3
+    lr_final: float | None = 1e-5
+    space_points: int = 128
+    time_points: int = 128
+    lbfgs_space_points: int = 192
+    lbfgs_time_points: int = 192
+    lbfgs_resample_every: int = 250
+    modal_modes: int = 0
+    scattered: bool = False
+    initial_points: int = 360
+    hard_initial: bool = True
+    output_scaling: bool = True
+    seed: int = 0
+    dtype: str = "float64"
+    checkpoint_every: int = 500
+    monitor_every: int = 0
+
+    @property
+    def lbfgs_iterations(self) -> int:
+        return round(self.iterations * self.lbfgs_fraction)
+
+    @property
+    def adam_iterations(self) -> int:
+        return self.iterations - self.lbfgs_iterations
+
+
+def _harmonic(features: int, decay: float = 0.0) -> dict[str, Any]:
+    spec: dict[str, Any] = {"kind": "harmonic", "features": features, "include_input": True}
+    if decay:
+        spec["decay"] = decay
+    return spec
+
+
+# The shipped recipes (chosen by measurement, docs/MODELS.md) and the published configuration.
+RECIPES: dict[str, dict[str, Any]] = {
+    "string-forced": {
+        "arch": {"name": "spinn", "rank": 32, "width": 64, "depth": 3,
+                 "space_features": _harmonic(16), "time_features": _harmonic(8)},
+        "iterations": 12000,
+        "lbfgs_fraction": 0.85,
+        "lbfgs_space_points": 256,
+        "lbfgs_time_points": 256,
+        "modal_modes": 16,
+    },
+    "string-plucked": {
+        "arch": {"name": "spinn", "rank": 64, "width": 64, "depth": 3,
+                 "space_features": _harmonic(32, decay=1.0),
+                 "time_features": _harmonic(32, decay=1.0)},
+        "iterations": 10000,
+        "lbfgs_fraction": 0.8,
+        "lbfgs_space_points": 256,
+        "lbfgs_time_points": 256,
+        # The kinks are seen through the modal term only (see _kink_modes): more modes.
+        "modal_modes": 32,
+    },
+    "string-plucked-smooth": {
+        "arch": {"name": "spinn", "rank": 64, "width": 64, "depth": 3,
+                 "space_features": _harmonic(32, decay=1.0),
+                 "time_features": _harmonic(32, decay=1.0)},
+        "iterations": 10000,
+        "lbfgs_fraction": 0.8,
+        "lbfgs_space_points": 256,
+        "lbfgs_time_points": 256,
+        "modal_modes": 16,
+    },
+    "membrane-forced": {
+        "arch": {"name": "spinn", "rank": 48, "width": 64, "depth": 3,
+                 "space_features": _harmonic(12), "time_features": _harmonic(12)},
+        # L-BFGS on a fixed 48^2 x 64 or 56^2 x 80 grid drove the residual down and the error
+        # up (docs/MODELS.md): Adam on a grid redrawn every step, only.
+        "iterations": 10000,
+        "lbfgs_fraction": 0.0,
+        "space_points": 48,
+        "time_points": 64,
+        "modal_modes": 8,
+    },
+}
+
+# The published DeepXDE setup (seed-facts.md), for the comparison benchmark.
+PUBLISHED: dict[str, dict[str, Any]] = {
+    "string-forced": {"sigmas_x": [1.0], "sigmas_t": [1.0, 50.0]},
+    "membrane-forced": {"sigmas_x": [1.0], "sigmas_t": [1.0, 10.0]},
+}
+
+
+def recipe(problem: str, family: str | None = None, **changes: Any) -> TrainConfig:
+    """The training configuration for a problem: ours by default, or ``family="stmsffn"``.
+
+    ``family="stmsffn"`` gives the published configuration (STMsFFN as published, Adam 1e-3 with
+    inverse-time decay, 1440 scattered points, soft initial conditions, no output scaling).
+    Keyword ``changes`` override any ``TrainConfig`` field.
+    """
+    if family in (None, "spinn"):
+        if problem not in RECIPES:
+            raise ValueError(f"no recipe for {problem!r}; known: {', '.join(sorted(RECIPES))}")
+        base: dict[str, Any] = {"problem": problem, **RECIPES[problem]}
+        base["arch"] = dict(base["arch"])
+    elif family == "stmsffn":
+        sigmas = PUBLISHED.get(problem, {"sigmas_x": [1.0], "sigmas_t": [1.0, 10.0]})
+        base = {
+            "problem": problem,
+            "arch": {"name": "stmsffn", "width": 100, "hidden": 3, "shared": True, **sigmas},
+            "iterations": 20000,
+            "lbfgs_fraction": 0.0,
+            "lr": 1e-3,
+            "lr_final": None,
+            "scattered": True,
+            "space_points": 1440,
+            "initial_points": 360,
+            "hard_initial": False,
+            "output_scaling": False,
+            "dtype": "float32",
+        }
+    else:
+        raise ValueError(f"unknown architecture {family!r}; known: spinn, stmsffn")
+    base.update(changes)
+    return TrainConfig(**base)
+
+
+def build_model(config: TrainConfig) -> PhysicalModel:
+    """A fresh, seeded model for a configuration."""
+    problem = make_problem(config.problem, config.overrides)
+    arch = {**config.arch, "spatial_dims": problem.spatial_dims, "seed": config.seed}
+    core = build_core(arch)
+    scale = characteristic_amplitude(problem) if config.output_scaling else 1.0
+    model = PhysicalModel(core, problem, scale, hard_initial=config.hard_initial)
+    return model.to(getattr(torch, config.dtype))
+
+
+# ---------------------------------------------------------------- collocation and loss
+
+
+def _stratified(n: int, high: float, generator: torch.Generator, dtype: torch.dtype) -> Tensor:
+    """n points in [0, high], one uniform draw per equal cell (covers the ends every time)."""
+    jitter = torch.rand(n, generator=generator, dtype=torch.float64)
+    return ((torch.arange(n, dtype=torch.float64) + jitter) * (high / n)).to(dtype)
+
+
+def _forcing_grid(problem: Problem, space: list[Tensor], t: Tensor) -> Tensor:
+    """f on the grid (space points flattened, time), shape (n_space, n_t)."""
+    if isinstance(problem, StringPlucked):
+        n = math.prod(s.shape[0] for s in space)
+        return torch.zeros(n, t.shape[0], dtype=t.dtype)
+    coords = [s.detach().cpu().numpy() for s in space]
+    mesh = np.meshgrid(*coords, indexing="ij")
+    profile = problem.force_space(*mesh).reshape(-1)  # type: ignore[attr-defined]
+    bump = time_bump(t.detach().cpu().numpy(), problem.a)  # type: ignore[attr-defined]
+    return torch.from_numpy(np.outer(profile, bump)).to(t.dtype)
+
+
+def _residual_scale(model: PhysicalModel, config: TrainConfig) -> float:
+    """The residual's characteristic size, so that the loss starts near 1."""
+    if not config.output_scaling:
+        return 1.0
+    problem = model.problem
+    if isinstance(problem, StringPlucked):
+        return problem.c**2 * model.scale * math.pi**2
+    return TIME_BUMP_PEAK * abs(problem.h) or 1.0  # type: ignore[attr-defined]
+
+
+@dataclass
+class Collocation:
+    """One set of collocation points: a grid (space axes, time) or scattered points."""
+
+    space: list[Tensor]
+    time: Tensor
+    scattered: bool = False
+    forcing: Tensor | None = None
+
+
+def sample_collocation(
+    problem: Problem, config: TrainConfig, generator: torch.Generator, fine: bool = False
+) -> Collocation:
+    """Draw collocation points (``fine``: the L-BFGS grid)."""
+    dtype = getattr(torch, config.dtype)
+    dims = problem.spatial_dims
+    if config.scattered and not fine:
+        n = config.space_points
+        space = [_uniform(n, 1.0, generator, dtype) for _ in range(dims)]
+        t = _uniform(n, problem.t_end, generator, dtype)[:, None]
+        forcing = _forcing_points(problem, space, t)
+        return Collocation(space, t, scattered=True, forcing=forcing)
+    ns = config.lbfgs_space_points if fine else config.space_points
+    nt = config.lbfgs_time_points if fine else config.time_points
+    space = [_stratified(ns, 1.0, generator, dtype) for _ in range(dims)]
+    t = _stratified(nt, problem.t_end, generator, dtype)[:, None]
+    return Collocation(space, t, forcing=_forcing_grid(problem, space, t))
+
+
+def _uniform(n: int, high: float, generator: torch.Generator, dtype: torch.dtype) -> Tensor:
+    return (torch.rand(n, generator=generator, dtype=torch.float64) * high).to(dtype)
+
+
+def _forcing_points(problem: Problem, space: list[Tensor], t: Tensor) -> Tensor:
+    if isinstance(problem, StringPlucked):
+        return torch.zeros(t.shape[0], dtype=t.dtype)
+    coords = [s.numpy() for s in space]
+    values = problem.forcing(*coords, t[:, 0].numpy())  # type: ignore[attr-defined]
+    return torch.from_numpy(np.asarray(values)).to(t.dtype)
+
+
+def loss_terms(
+    model: PhysicalModel, points: Collocation, config: TrainConfig, generator: torch.Generator
+) -> dict[str, Tensor]:
+    """The loss terms: mean squared scaled residual (+ soft initial conditions)."""
+    c2 = model.problem.c**2
+    scale = _residual_scale(model, config)
+    time_jet = model.time_jet(points.time)
+    b, b_tt = time_jet.value, time_jet.d2[0]
+    if points.scattered:
+        space_jet = model.space_jet(torch.stack(points.space, 1))
+        u_tt = torch.sum(space_jet.value * b_tt, 1)
+        lap = torch.sum(space_jet.laplacian() * b, 1)
+    else:
+        space_jet = model.space_grid_jet(points.space)
+        u_tt = space_jet.value @ b_tt.T
+        lap = space_jet.laplacian() @ b.T
+    assert points.forcing is not None
+    residual = u_tt - c2 * lap - points.forcing
+    terms = {"residual": torch.mean((residual / scale) ** 2)}
+    if config.modal_modes and not points.scattered:
+        terms["modal"] = modal_term(
+            residual, points.space, points.time, math.sqrt(c2), model.scale, config.modal_modes,
+            singular=_kink_modes(model, config.modal_modes, points.time),
+        )
+    if not config.hard_initial:
+        terms.update(_initial_terms(model, config, generator))
+    return terms
+
+
+def modal_term(
+    residual: Tensor,
+    space: list[Tensor],
+    t: Tensor,
+    c: float,
+    amplitude: float,
+    modes: int,
+    singular: Tensor | None = None,
+) -> Tensor:
+    """The displacement error that the residual's low sine modes cause, relative to S.
+
+    With u = u_exact + e, the error obeys the same wave equation driven by the residual:
+    e_tt - c^2 Laplacian(e) = r, e = e_t = 0 at t = 0. Per sine mode n (angular frequency
+    w_n = c pi |n|) that is Duhamel's integral e_n(t) = int_0^t sin(w_n (t - s)) / w_n r_n(s) ds.
+    A low mode's residual is small for a large error (and a resonant one keeps growing), so the
+    mean-square residual hardly sees the error that dominates the relative L2 norm; this term
+    measures that error directly: mean (e_n(t_j) / S)^2 over the first ``modes`` modes per axis
+    and the time points. It is the residual under a fixed linear operator: zero exactly where the
+    residual is, and it uses nothing of the solution. Quadrature: the collocation points
+    (stratified, so sorted, each standing for one cell of the axis). ``singular`` (modes, n_t)
+    adds the modal coefficients of a part of the residual that points cannot sample (a Dirac).
+    """
+    n = torch.arange(1, modes + 1, dtype=residual.dtype)
+    projections = [2.0 / s.shape[0] * torch.sin(math.pi * n[:, None] * s[None, :]) for s in space]
+    grid = residual.reshape(*[s.shape[0] for s in space], residual.shape[-1])
+    if len(space) == 1:
+        coeffs = projections[0] @ grid  # (modes, n_t)
+        if singular is not None:
+            coeffs = coeffs + singular
+        wavenumber = n
+    else:
+        coeffs = torch.einsum("ki,lj,ijt->klt", projections[0], projections[1], grid)
+        coeffs = coeffs.reshape(-1, grid.shape[-1])
+        wavenumber = torch.sqrt(n[:, None] ** 2 + n[None, :] ** 2).reshape(-1)
+    omega = c * math.pi * wavenumber  # (M,)
+    times = t[:, 0]
+    cell = (times[-1] - times[0]) / max(times.shape[0] - 1, 1)
+    lag = times[:, None] - times[None, :]  # t_j - s_i
+    causal = (lag > 0).to(residual.dtype)
+    kernel = torch.sin(omega[:, None, None] * lag[None]) / omega[:, None, None] * causal * cell
+    error = torch.einsum("mji,mi->mj", kernel, coeffs)
+    return torch.mean((error / amplitude) ** 2)
+
+
+def _kink_modes(model: PhysicalModel, modes: int, t: Tensor) -> Tensor | None:
+    """Sine coefficients of the residual's Dirac part for the kinked pluck, else None.
+
+    The triangle's w'' is a Dirac of weight -(h/x0 + h/(1-x0)) at x0, which no collocation point
+    sees: at points, the static triangle solves the equation, so without this part the residual
+    is blind to the pluck. Its column enters u with B = 1, so the residual holds -c^2 w'' at
+    every time, with sine coefficients -c^2 * 2 * weight * sin(n pi x0).
+    """
+    problem = model.problem
+    if not isinstance(problem, StringPlucked) or problem.smoothing > 0.0:
+        return None
+    weight = -(problem.height / problem.x0 + problem.height / (1.0 - problem.x0))
+    n = torch.arange(1, modes + 1, dtype=t.dtype)
+    coeffs = -problem.c**2 * 2.0 * weight * torch.sin(math.pi * n * problem.x0)
+    return coeffs[:, None].expand(modes, t.shape[0])
+
+
+def _initial_terms(
+    model: PhysicalModel, config: TrainConfig, generator: torch.Generator
+) -> dict[str, Tensor]:
+    """Soft u(x, 0) = w(x) and u_t(x, 0) = 0 (w = 0 for the forced problems), at t = 0."""
+    dtype = getattr(torch, config.dtype)
+    x = torch.stack(
+        [_uniform(config.initial_points, 1.0, generator, dtype) for _ in range(model.spatial_dims)],
+        1,
+    )
+    t0 = torch.zeros(1, 1, dtype=dtype)
+    jet = model.time_jet(t0)
+    a = model.space(x)
+    u0 = a @ jet.value[0]
+    ut0 = a @ jet.d1[0][0]
+    target = torch.zeros_like(u0)
+    if model.plucked:
+        assert isinstance(model.problem, StringPlucked)
+        from membrane_models.transforms import initial_shape_jet
+
+        target = initial_shape_jet(model.problem, x[:, :1])[0][:, 0]
+    norm = model.scale
+    return {
+        "initial": torch.mean(((u0 - target) / norm) ** 2),
+        "velocity": torch.mean((ut0 * model.t_end / norm) ** 2),
+    }
+
+
+# ---------------------------------------------------------------- checkpoints
+
+
+def load_checkpoint(path: Path) -> dict[str, Any]:
+    """Read a checkpoint (tensors and plain data only)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"no checkpoint at {path}")
+    try:
+        data: dict[str, Any] = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises several types for a file that is not a checkpoint
+        raise ValueError(f"{path} is not a readable checkpoint: {exc}") from None
+    if data.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path}: checkpoint format {data.get('format')!r} unsupported")
+    return data
+
+
+def model_from_checkpoint(data: dict[str, Any]) -> tuple[PhysicalModel, TrainConfig]:
+    """Rebuild the trained model (in its training dtype) and its configuration."""
+    config = TrainConfig(**data["config"])
+    model = build_model(config)
+    model.load_state_dict(data["model"])
+    return model, config
+
+
+def _save(path: Path, state: dict[str, Any]) -> None:
+    tmp = path.with_suffix(".tmp")
+    torch.save(state, tmp)
+    tmp.replace(path)  # never leave a half-written checkpoint behind
+
+
+# ---------------------------------------------------------------- the loop
+
+
+@dataclass
+class TrainResult:
+    """What a run ended with."""
+
+    model: PhysicalModel
+    config: TrainConfig
+    iterations: int
+    wall_time: float
+    history: list[dict[str, float]]
+    checkpoint: Path | None
+
+
+def _adam_lr(config: TrainConfig, step: int) -> float:
+    if config.lr_final is None:  # the published inverse-time decay
+        return config.lr / (1.0 + 0.9 * step / 2000.0)
+    steps = max(config.adam_iterations - 1, 1)
+    return config.lr * (config.lr_final / config.lr) ** (step / steps)
+
+
+def train(
+    config: TrainConfig,
+    out_dir: Path | None = None,
+    command: str = "",
+    resume: bool = False,
+    monitor: Monitor | None = None,
+    progress: bool = True,
+    time_budget: float | None = None,
+    until: int | None = None,
+) -> TrainResult:
+    """Train a model; checkpoints go to ``out_dir/checkpoint.pt`` when ``out_dir`` is given.
+
+    Args:
+        config: The run's configuration.
+        out_dir: Where the checkpoint goes (None: keep nothing on disk).
+        command: The command line that started the run (stored in the checkpoint).
+        resume: Continue from ``out_dir/checkpoint.pt`` (same configuration).
+        monitor: Called every ``config.monitor_every`` iterations; returns figures to log.
+        progress: Show a tqdm progress bar with the loss terms.
+        time_budget: Stop after this many seconds of training (None: run all iterations).
+        until: Stop after this iteration (a checkpoint is written; ``resume`` continues).
+    """
+    torch.manual_seed(config.seed)
+    generator = torch.Generator().manual_seed(config.seed + 1)
+    model = build_model(config)
+    problem = model.problem
+    params = list(model.parameters())
+    adam = torch.optim.Adam(params, lr=config.lr)
+    lbfgs = torch.optim.LBFGS(
+        params, lr=1.0, max_iter=1, max_eval=25, history_size=50, line_search_fn="strong_wolfe",
+        tolerance_grad=0.0, tolerance_change=0.0,
+    )
+    start, wall, history = 0, 0.0, []
+    lbfgs_scale: float | None = None
+    checkpoint = out_dir / "checkpoint.pt" if out_dir is not None else None
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    if resume:
+        if checkpoint is None:
+            raise ValueError("resume needs an output directory")
+        data = load_checkpoint(checkpoint)
+        if data["config"] != dataclasses.asdict(config):
+            raise ValueError(f"{checkpoint} was trained with another configuration")
+        model.load_state_dict(data["model"])
+        adam.load_state_dict(data["adam"])
+        if data.get("lbfgs"):
+            lbfgs.load_state_dict(data["lbfgs"])
+        torch.set_rng_state(data["torch_rng"])
+        generator.set_state(data["sampler_rng"])
+        start, wall, history = data["iteration"], data["wall_time"], list(data["history"])
+        lbfgs_scale = data.get("lbfgs_scale")
+        command = data.get("command", command)
+        logger.info("resumed %s at iteration %d", checkpoint, start)
+
+    def save(iteration: int) -> None:
+        if checkpoint is None:
+            return
+        _save(checkpoint, {
+            "format": CHECKPOINT_FORMAT,
+            "config": dataclasses.asdict(config),
+            "model": model.state_dict(),
+            "transform": model.transform_config(),
+            "problem": config.problem,
+            "parameters": problem.parameters(),
+            "iteration": iteration,
+            "adam": adam.state_dict(),
+            "lbfgs": lbfgs.state_dict() if iteration > config.adam_iterations else None,
+            "lbfgs_scale": lbfgs_scale,
+            "torch_rng": torch.get_rng_state(),
+            "sampler_rng": generator.get_state(),
+            "wall_time": wall,
+            "command": command,
+            "history": history,
+        })
+
+    fine: Collocation | None = None
+    bar = _progress_bar(config.iterations, start, progress)
+    done = start
+    try:
+        for iteration in range(start, config.iterations):
+            if time_budget is not None and wall >= time_budget:
+                break
+            if until is not None and iteration >= until:
+                break
+            began = time.perf_counter()
+            if iteration < config.adam_iterations:
+                terms = _adam_step(model, adam, config, generator, iteration)
+            else:
+                lbfgs_done = iteration - config.adam_iterations
+                if fine is None or (lbfgs_done and lbfgs_done % config.lbfgs_resample_every == 0):
+                    fine = sample_collocation(problem, config, generator, fine=True)
+                    lbfgs.state.clear()
+                    lbfgs_scale = None
+                if lbfgs_scale is None:
+                    lbfgs_scale = 1.0 / max(_total_loss(model, fine, config, generator), 1e-300)
+                terms = _lbfgs_step(model, lbfgs, fine, config, generator, lbfgs_scale)
+            wall += time.perf_counter() - began
+            done = iteration + 1
+            record = {"iteration": float(done), "wall_time": wall, **terms}
+            if monitor is not None and config.monitor_every and done % config.monitor_every == 0:
+                record.update(monitor(model))
+                logger.info("iteration %d: %s", done, _fmt(record))
+            elif done % 200 == 0:
+                logger.info("iteration %d: %s", done, _fmt(record))
+            history.append(record)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix({k: f"{v:.2e}" for k, v in terms.items()}, refresh=False)
+            if done % config.checkpoint_every == 0:
+                save(done)
+            if not all(math.isfinite(v) for v in terms.values()):
+                raise FloatingPointError(f"loss became {terms} at iteration {done}")
+    finally:
+        if bar is not None:
+            bar.close()
+    save(done)
+    return TrainResult(model, config, done, wall, history, checkpoint)
+
+
+def _total_loss(
+    model: PhysicalModel, points: Collocation, config: TrainConfig, generator: torch.Generator
+) -> float:
+    state = generator.get_state()
+    with torch.no_grad():
+        loss = sum(float(v) for v in loss_terms(model, points, config, generator).values())
+    generator.set_state(state)
+    return loss
+
+
+def _fmt(record: dict[str, float]) -> str:
+    return " ".join(f"{k}={v:.4g}" for k, v in record.items() if k != "iteration")
+
+
+def _progress_bar(total: int, start: int, enabled: bool) -> Any:
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=start, desc="train", unit="it", dynamic_ncols=True)
+
+
+def _adam_step(
+    model: PhysicalModel,
+    adam: torch.optim.Adam,
+    config: TrainConfig,
+    generator: torch.Generator,
+    iteration: int,
+) -> dict[str, float]:
+    for group in adam.param_groups:
+        group["lr"] = _adam_lr(config, iteration)
+    points = sample_collocation(model.problem, config, generator)
+    adam.zero_grad(set_to_none=True)
+    terms = loss_terms(model, points, config, generator)
+    loss = sum(terms.values(), torch.zeros(()))
+    loss.backward()
+    adam.step()
+    return {k: float(v.detach()) for k, v in terms.items()}
+
+
+def _lbfgs_step(
+    model: PhysicalModel,
+    lbfgs: torch.optim.LBFGS,
+    points: Collocation,
+    config: TrainConfig,
+    generator: torch.Generator,
+    loss_scale: float,
+) -> dict[str, float]:
+    """One L-BFGS iteration on the fixed grid; the objective is the loss times ``loss_scale``.
+
+    The scale brings the objective to O(1): L-BFGS's curvature test (y.s > 1e-10) and its line
+    search tolerances are absolute, and at losses near 1e-6 they stop every update.
+    """
+    # Soft initial terms draw their points inside loss_terms: fix them for L-BFGS's line search.
+    state = generator.get_state()
+    last: dict[str, float] = {}
+
+    def closure() -> Tensor:
+        generator.set_state(state)
+        lbfgs.zero_grad(set_to_none=True)
+        terms = loss_terms(model, points, config, generator)
+        loss = sum(terms.values(), torch.zeros(())) * loss_scale
+        loss.backward()
+        last.update({k: float(v.detach()) for k, v in terms.items()})
+        return loss
+
+    before = [p.detach().clone() for p in model.parameters()]
+    lbfgs.step(closure)
+    if all(torch.equal(a, p) for a, p in zip(before, model.parameters(), strict=True)):
+        # No step taken (its direction was no longer one of descent): restart from the
+        # gradient with a fresh curvature history instead of stalling for good.
+        logger.debug("L-BFGS stalled; history cleared")
+        lbfgs.state.clear()
+        lbfgs.step(closure)
+    return last

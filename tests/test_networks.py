@@ -1,0 +1,117 @@
+"""The networks' forward-propagated derivatives against autograd, and their separable form."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from membrane_models.networks import SeparableCore, SeparablePINN, STMsFFN, build_core
+from membrane_models.problems import StringPlucked, make_problem
+from membrane_models.transforms import PhysicalModel, characteristic_amplitude
+
+D = torch.float64
+
+
+def _small_core(name: str, dims: int) -> SeparableCore:
+    if name == "spinn":
+        features = {"kind": "harmonic", "features": 3, "include_input": True}
+        return SeparablePINN(dims, rank=5, width=8, depth=2, space_features=features,
+                             time_features={"kind": "gaussian", "sigma": 2.0, "features": 3})
+    return STMsFFN(dims, width=8, hidden=2, sigmas_x=[1.0], sigmas_t=[1.0, 5.0], shared=False)
+
+
+def _autograd_laplacian(values: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    lap = torch.zeros_like(values)
+    for k in range(values.shape[1]):
+        grad = torch.autograd.grad(values[:, k].sum(), points, create_graph=True)[0]
+        for a in range(points.shape[1]):
+            lap[:, k] += torch.autograd.grad(grad[:, a].sum(), points, retain_graph=True)[0][:, a]
+    return lap
+
+
+CASES = [
+    ("spinn", "string-forced"),
+    ("spinn", "membrane-forced"),
+    ("spinn", "string-plucked-smooth"),
+    ("stmsffn", "string-forced"),
+    ("stmsffn", "membrane-forced"),
+]
+
+
+@pytest.mark.parametrize(("arch", "problem_name"), CASES)
+def test_space_jet_matches_autograd(arch: str, problem_name: str) -> None:
+    problem = make_problem(problem_name)
+    model = PhysicalModel(_small_core(arch, problem.spatial_dims), problem, 1e-3).double()
+    axes = [torch.rand(4, dtype=D) for _ in range(problem.spatial_dims)]
+    jet = model.space_grid_jet(axes)
+    mesh = torch.meshgrid(*axes, indexing="ij")
+    points = torch.stack([m.reshape(-1) for m in mesh], 1).requires_grad_(True)
+    values = model.space(points)
+    torch.testing.assert_close(jet.value, values.detach(), rtol=1e-12, atol=1e-15)
+    expected = _autograd_laplacian(values, points).detach()
+    torch.testing.assert_close(jet.laplacian(), expected, rtol=1e-9, atol=1e-12)
+
+
+def _second(first: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    if not first.requires_grad:  # a constant column (the pluck's B = 1)
+        return torch.zeros(t.shape[0], dtype=D)
+    return torch.autograd.grad(first.sum(), t, retain_graph=True)[0][:, 0]
+
+
+@pytest.mark.parametrize(("arch", "problem_name"), CASES)
+def test_time_jet_matches_autograd(arch: str, problem_name: str) -> None:
+    problem = make_problem(problem_name)
+    model = PhysicalModel(_small_core(arch, problem.spatial_dims), problem, 1e-3).double()
+    t = (torch.rand(6, 1, dtype=D) * problem.t_end).requires_grad_(True)
+    values = model.time(t)
+    jet = model.time_jet(t)
+    first = torch.stack(
+        [torch.autograd.grad(values[:, k].sum(), t, create_graph=True)[0][:, 0]
+         for k in range(values.shape[1])], 1)
+    second = torch.stack([_second(first[:, k], t) for k in range(values.shape[1])], 1)
+    torch.testing.assert_close(jet.value, values.detach())
+    torch.testing.assert_close(jet.d1[0], first.detach(), rtol=1e-9, atol=1e-12)
+    torch.testing.assert_close(jet.d2[0], second.detach(), rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize(("arch", "problem_name"), CASES)
+def test_full_output_is_space_times_time(arch: str, problem_name: str) -> None:
+    problem = make_problem(problem_name)
+    model = PhysicalModel(_small_core(arch, problem.spatial_dims), problem, 1e-3).double()
+    x = torch.rand(7, problem.spatial_dims, dtype=D)
+    t = torch.rand(5, 1, dtype=D) * problem.t_end
+    grid = model.space(x) @ model.time(t).T
+    xt = torch.cat([x.repeat_interleave(5, 0), t.repeat(7, 1)], 1)
+    torch.testing.assert_close(model(xt).reshape(7, 5), grid)
+
+
+def test_hard_conditions_hold_for_an_untrained_network() -> None:
+    problem = make_problem("membrane-forced")
+    model = PhysicalModel(_small_core("spinn", 2), problem, 1e-3).double()
+    edge = torch.tensor([[0.0, 0.3], [1.0, 0.7], [0.4, 0.0], [0.6, 1.0]], dtype=D)
+    assert torch.all(model.space(edge) == 0.0)
+    jet = model.time_jet(torch.zeros(1, 1, dtype=D))
+    assert torch.all(jet.value == 0.0) and torch.all(jet.d1 == 0.0)
+
+
+def test_plucked_model_starts_from_the_pluck() -> None:
+    problem = make_problem("string-plucked")
+    assert isinstance(problem, StringPlucked)
+    model = PhysicalModel(_small_core("spinn", 1), problem, problem.height).double()
+    x = torch.linspace(0, 1, 11, dtype=D)[:, None]
+    u0 = model(torch.cat([x, torch.zeros_like(x)], 1))[:, 0]
+    torch.testing.assert_close(u0, torch.from_numpy(problem.triangle(x[:, 0].numpy())))
+
+
+def test_build_core_round_trip_and_unknown_name() -> None:
+    core = _small_core("stmsffn", 1)
+    assert build_core(core.config()).config() == core.config()
+    with pytest.raises(ValueError, match="unknown architecture"):
+        build_core({"name": "koopman"})
+
+
+def test_characteristic_amplitude_is_the_size_of_the_response() -> None:
+    # The static deflection under the peak force; the true peaks are 5.6e-4 and 4.8e-4.
+    assert 3e-4 < characteristic_amplitude(make_problem("string-forced")) < 1e-3
+    assert 2.5e-4 < characteristic_amplitude(make_problem("membrane-forced")) < 1e-3
+    assert characteristic_amplitude(make_problem("string-plucked")) == 0.05

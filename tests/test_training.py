@@ -1,0 +1,128 @@
+"""Short training runs: the loss falls, runs are deterministic, checkpoints resume."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+from membrane_models.exact import exact_solution
+from membrane_models.problems import StringPlucked, make_problem
+from membrane_models.training import (
+    TrainConfig,
+    load_checkpoint,
+    model_from_checkpoint,
+    recipe,
+    train,
+)
+from membrane_models.transforms import initial_shape_jet
+
+TINY_SPINN: dict[str, Any] = {
+    "name": "spinn", "rank": 6, "width": 16, "depth": 2,
+    "space_features": {"kind": "harmonic", "features": 4, "include_input": True},
+    "time_features": {"kind": "harmonic", "features": 4, "include_input": True},
+}
+
+
+def _tiny(problem: str, **changes: Any) -> TrainConfig:
+    base: dict[str, Any] = {
+        "arch": TINY_SPINN, "iterations": 60, "lbfgs_fraction": 0.25, "lr": 3e-3,
+        "space_points": 16, "time_points": 16, "lbfgs_space_points": 20,
+        "lbfgs_time_points": 20, "checkpoint_every": 20,
+    }
+    base.update(changes)
+    return recipe(problem, **base)
+
+
+@pytest.mark.parametrize("problem", ["string-forced", "membrane-forced", "string-plucked-smooth"])
+def test_short_run_loss_falls(problem: str) -> None:
+    result = train(_tiny(problem), progress=False)
+    losses = [h["residual"] for h in result.history]
+    assert len(losses) == 60
+    assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
+
+
+def test_published_configuration_trains_with_initial_terms() -> None:
+    config = recipe(
+        "string-forced", "stmsffn", iterations=30,
+        arch={"name": "stmsffn", "width": 16, "hidden": 2, "sigmas_x": [1.0],
+              "sigmas_t": [1.0, 50.0], "shared": True},
+        space_points=64, initial_points=32,
+    )
+    result = train(config, progress=False)
+    first, last = result.history[0], result.history[-1]
+    assert {"residual", "initial", "velocity"} <= set(last)
+    assert last["residual"] + last["initial"] + last["velocity"] < (
+        first["residual"] + first["initial"] + first["velocity"]
+    )
+
+
+def test_runs_are_deterministic_for_a_seed() -> None:
+    a = train(_tiny("string-forced", iterations=20), progress=False).history
+    b = train(_tiny("string-forced", iterations=20), progress=False).history
+    c = train(_tiny("string-forced", iterations=20, seed=1), progress=False).history
+    assert [h["residual"] for h in a] == [h["residual"] for h in b]
+    assert [h["residual"] for h in a] != [h["residual"] for h in c]
+
+
+def test_checkpoint_is_plain_data_and_resumes(tmp_path: Path) -> None:
+    config = _tiny("string-forced", iterations=40, lbfgs_fraction=0.0)
+    full = train(config, progress=False)
+    train(config, out_dir=tmp_path, command="membrane train x", progress=False, until=20)
+    data = load_checkpoint(tmp_path / "checkpoint.pt")  # weights_only=True inside
+    assert data["iteration"] == 20 and data["command"] == "membrane train x"
+    resumed = train(config, out_dir=tmp_path, resume=True, progress=False)
+    assert resumed.iterations == 40
+    assert [h["residual"] for h in resumed.history] == [h["residual"] for h in full.history]
+    model, restored = model_from_checkpoint(load_checkpoint(tmp_path / "checkpoint.pt"))
+    assert restored == config
+    x = torch.rand(5, 2, dtype=torch.float64)
+    torch.testing.assert_close(model(x), resumed.model(x))
+
+
+def test_resume_refuses_another_configuration(tmp_path: Path) -> None:
+    train(_tiny("string-forced", iterations=5), out_dir=tmp_path, progress=False)
+    with pytest.raises(ValueError, match="another configuration"):
+        train(_tiny("string-forced", iterations=5, seed=3), out_dir=tmp_path, resume=True,
+              progress=False)
+
+
+def test_not_a_checkpoint_is_a_clear_error(tmp_path: Path) -> None:
+    bad = tmp_path / "checkpoint.pt"
+    bad.write_text("not a checkpoint")
+    with pytest.raises(ValueError, match="not a readable checkpoint"):
+        load_checkpoint(bad)
+    with pytest.raises(FileNotFoundError):
+        load_checkpoint(tmp_path / "missing.pt")
+
+
+@pytest.mark.parametrize("smoothing", ["0", "0.02"])
+def test_initial_shape_matches_the_exact_solution_at_t0(smoothing: str) -> None:
+    problem = make_problem("string-plucked", {"smoothing": smoothing})
+    assert isinstance(problem, StringPlucked)
+    x = np.linspace(0.0, 1.0, 201)
+    expected = exact_solution(problem).grid(x, np.array([0.0]))[:, 0]
+    got = initial_shape_jet(problem, torch.from_numpy(x)[:, None])[0][:, 0].numpy()
+    np.testing.assert_allclose(got, expected, atol=1e-9 * problem.height)
+
+
+def test_modal_term_sees_the_kink_that_points_cannot() -> None:
+    # -c^2 times the sine coefficients of w'', by parts: 2 int w'' sin(n pi x) = -2 (n pi)^2 int w
+    # sin(n pi x), computed from the triangle itself on a fine midpoint grid.
+    from membrane_models.training import _kink_modes, build_model
+
+    model = build_model(recipe("string-plucked"))
+    problem = model.problem
+    assert isinstance(problem, StringPlucked)
+    x = (np.arange(4000) + 0.5) / 4000
+    n = np.arange(1, 6)
+    by_parts = -2.0 * (np.pi * n) ** 2 * (np.sin(np.pi * np.outer(n, x)) @ problem.triangle(x))
+    expected = -(problem.c**2) * by_parts / 4000
+    got = _kink_modes(model, 5, torch.zeros(3, 1, dtype=torch.float64))
+    assert got is not None and got.shape == (5, 3)
+    np.testing.assert_allclose(got[:, 0].numpy(), expected, rtol=1e-5)
+    smooth = build_model(recipe("string-plucked-smooth"))
+    assert _kink_modes(smooth, 5, torch.zeros(3, 1, dtype=torch.float64)) is None
