@@ -1,0 +1,340 @@
+"""One benchmark as `membrane bench` runs it: probe the server, load it, load the echo, compare.
+
+``probe`` asks the server what to send (the scene's time grid) and how long its replies are;
+``run_bench`` runs the load against the server and, for a baseline, the same load from the same
+code against an echo server (``membrane_client.echo``) whose replies are as long; ``BenchReport``
+holds both and renders them as a table, JSON or CSV rows.
+
+Every ``vs_baseline`` figure reads "how many times worse than the echo": a latency percentile is
+server / echo, throughput is echo / server. 1.0 means the server costs nothing beyond ZeroMQ.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import math
+import secrets
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import zmq
+
+from membrane_client import protocol
+from membrane_client.echo import EchoServer
+from membrane_client.errors import MembraneError
+from membrane_client.loadtest import PERCENTILES, LoadResult, LoadSpec, ProgressHook, run_load
+
+__all__ = ["BenchError", "BenchReport", "Target", "probe", "run_bench"]
+
+_LATENCY_COLUMNS = (*PERCENTILES, "max")
+_CSV_COUNTS = (
+    "sent",
+    "replies",
+    "ok",
+    "error_count",
+    "missed_deadlines",
+    "unsent",
+    "throughput_hz",
+)
+
+
+class BenchError(MembraneError):
+    """The server under test cannot be benchmarked (no reply, or an error reply to the probe)."""
+
+
+@dataclass(frozen=True)
+class Target:
+    """What the probe learnt about the server under test.
+
+    Attributes:
+        address: The server's address.
+        scene: The scene the queries go to (as the server names it), or None for ``ping``.
+        times: The query times to cycle through (the scene's step times, or the one asked for).
+        reply_bytes: Length of the server's reply to one benchmarked request.
+        evaluator: The scene's evaluator kind (``describe``), or None.
+    """
+
+    address: str
+    scene: str | None
+    times: tuple[float, ...]
+    reply_bytes: int
+    evaluator: str | None
+
+
+class _Prober:
+    """A REQ socket with a timeout, for the few requests before the load starts."""
+
+    def __init__(self, address: str, timeout: float) -> None:
+        self._address = address
+        self._context = zmq.Context()
+        self._socket = self._context.socket(zmq.REQ)
+        self._socket.setsockopt(zmq.LINGER, 0)
+        self._socket.setsockopt(zmq.RCVTIMEO, max(int(timeout * 1000), 1))
+        self._socket.connect(address)
+        self._timeout = timeout
+        self._next_id = 0
+
+    def ask(self, op: str, **fields: Any) -> tuple[dict[str, Any], int]:
+        """Send one request; returns the checked reply and its length in bytes."""
+        self._next_id += 1
+        self._socket.send(protocol.encode(protocol.request(op, self._next_id, **fields)))
+        try:
+            data = self._socket.recv()
+        except zmq.Again:
+            raise BenchError(
+                f"no reply from {self._address} within {self._timeout:g} s (is a server there?)"
+            ) from None
+        try:
+            return protocol.check_reply(protocol.decode(data), self._next_id), len(data)
+        except MembraneError as exc:
+            raise BenchError(f"{op} request to {self._address} failed: {exc}") from None
+
+    def close(self) -> None:
+        self._socket.close(linger=0)
+        self._context.term()
+
+
+def probe(
+    address: str,
+    payload: str = "query",
+    scene: str | None = None,
+    fixed_t: float | None = None,
+    timeout: float = 2.0,
+) -> Target:
+    """Ask the server for its time grid and measure its reply to one benchmarked request.
+
+    Raises:
+        BenchError: No reply within ``timeout``, or an error reply (e.g. an unknown scene).
+    """
+    prober = _Prober(address, timeout)
+    try:
+        if payload == "ping":
+            _, size = prober.ask("ping")
+            return Target(address, None, (0.0,), size, None)
+        info, _ = prober.ask("describe", scene=scene)
+        times = (fixed_t,) if fixed_t is not None else _step_times(info)
+        reply, size = prober.ask("query", t=times[0], scene=scene)
+        evaluator = info.get("evaluator", {})
+        kind = evaluator.get("kind") if isinstance(evaluator, dict) else None
+        return Target(address, str(reply.get("scene", scene)), times, size, kind)
+    finally:
+        prober.close()
+
+
+def _step_times(info: dict[str, Any]) -> tuple[float, ...]:
+    """The scene's frame times start_offset + k dt, k = 0 .. steps - 1 (docs/PROTOCOL.md)."""
+    try:
+        dt, offset = float(info["dt"]), float(info.get("start_offset", 0.0))
+        steps = int(info.get("steps", round(float(info["duration"]) / dt) + 1))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise BenchError(f"describe reply lacks the time grid: {exc!r}") from None
+    if not (math.isfinite(dt) and dt > 0 and steps >= 1):
+        raise BenchError(f"describe reply has an unusable time grid (dt={dt}, steps={steps})")
+    return tuple(offset + k * dt for k in range(steps))
+
+
+@dataclass
+class BenchReport:
+    """The server's result, the echo's (with ``--baseline``), and what was asked."""
+
+    target: Target
+    spec: LoadSpec
+    server: LoadResult
+    baseline: LoadResult | None = None
+    segments: int = 1
+
+    def vs_baseline(self) -> dict[str, float] | None:
+        """Server / echo per latency percentile, echo / server for throughput; None without one."""
+        if self.baseline is None:
+            return None
+        ours, echo = self.server.percentiles(), self.baseline.percentiles()
+        ratios = {label: _ratio(ours[label], echo[label]) for label in _LATENCY_COLUMNS}
+        ratios["throughput"] = _ratio(self.baseline.throughput, self.server.throughput)
+        return ratios
+
+    def config(self) -> dict[str, Any]:
+        """The load and the target, as plain data."""
+        spec = self.spec
+        return {
+            "address": self.target.address,
+            "scene": self.target.scene,
+            "evaluator": self.target.evaluator,
+            "mode": spec.mode,
+            "rate_hz": spec.rate if spec.mode == "open" else None,
+            "concurrency": spec.concurrency if spec.mode == "closed" else None,
+            "clients": spec.clients,
+            "duration_s": spec.duration,
+            "warmup_s": spec.warmup,
+            "payload": spec.payload,
+            "query_times": len(spec.times) if spec.payload == "query" else 0,
+            "reply_bytes": self.target.reply_bytes,
+            "timeout_s": spec.timeout,
+            "deadline_ms": None if spec.deadline_s is None else spec.deadline_s * 1e3,
+            "segments": self.segments,
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """Everything, for ``--json``."""
+        return {
+            "config": self.config(),
+            "server": self.server.summary(),
+            "baseline": None if self.baseline is None else self.baseline.summary(),
+            "vs_baseline": self.vs_baseline(),
+        }
+
+    def table(self) -> str:
+        """A fixed-width table for people."""
+        lines = [self._headline(), ""]
+        header = f"{'':<16}" + "".join(f"{c:>10}" for c in _LATENCY_COLUMNS)
+        lines.append(header + f"{'req/s':>11}{'errors':>8}{'missed':>8}")
+        for result in (self.server, self.baseline):
+            if result is not None:
+                lines.append(_result_row(result))
+        ratios = self.vs_baseline()
+        if ratios is not None:
+            cells = "".join(f"{_times(ratios[c]):>10}" for c in _LATENCY_COLUMNS)
+            lines.append(f"{'server vs echo':<16}{cells}{_times(ratios['throughput']):>11}")
+            lines.append("(latency: server / echo; req/s: echo / server; 1.00x: as fast as ZeroMQ)")
+        for result in (self.server, self.baseline):
+            if result is not None and result.unsent:
+                lines.append(
+                    f"{result.label}: {result.unsent} requests fell due but were not sent before "
+                    "the end: it could not keep up with the rate"
+                )
+        if self.spec.mode == "open":
+            lines.append(
+                "latency counts from each request's due time (coordinated omission corrected); "
+                f"missed = later than {self.spec.deadline_s * 1e3:g} ms"  # type: ignore[operator]
+            )
+        return "\n".join(lines)
+
+    def _headline(self) -> str:
+        spec = self.spec
+        load = (
+            f"open loop {spec.rate:g} Hz"
+            if spec.mode == "open"
+            else (f"closed loop {spec.concurrency} in flight")
+        )
+        clients = f"{spec.clients} client{'s' if spec.clients > 1 else ''}"
+        what: str = spec.payload
+        if spec.payload == "query":
+            what += f" on scene {self.target.scene} ({self.target.evaluator or '?'} evaluator)"
+        timing = f"{spec.duration:g} s (+{spec.warmup:g} s warm-up)"
+        if self.segments > 1:
+            timing = (
+                f"{spec.duration:g} s in {self.segments} parts alternating with the echo "
+                f"(+{spec.warmup:g} s warm-up each)"
+            )
+        return (
+            f"{load}, {clients}, {timing}, {what}, "
+            f"{self.target.reply_bytes}-byte replies, {self.target.address}"
+        )
+
+    def csv_rows(self) -> list[dict[str, Any]]:
+        """One row per run (server, then echo); the server row carries the ratios."""
+        config = self.config()
+        ratios = self.vs_baseline() or {}
+        rows = []
+        for result in (self.server, self.baseline):
+            if result is None:
+                continue
+            summary = result.summary()
+            row: dict[str, Any] = {"label": result.label, **config, "address": result.address}
+            for key in _CSV_COUNTS:
+                row[key] = summary[key]
+            row["errors"] = ";".join(f"{k}={v}" for k, v in summary["errors"].items())
+            for name, value in summary["latency_us"].items():
+                row[f"{name}_us"] = value
+            for name, value in summary["service_us"].items():
+                row[f"service_{name}_us"] = value
+            for name in (*_LATENCY_COLUMNS, "throughput"):
+                is_server = result is self.server
+                row[f"{name}_vs_baseline"] = ratios.get(name) if is_server else None
+            rows.append(row)
+        return rows
+
+    def write_csv(self, path: Path) -> None:
+        """Append the rows to ``path`` (header written when the file is new or empty)."""
+        rows = self.csv_rows()
+        new = not path.exists() or path.stat().st_size == 0
+        with path.open("a", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+            if new:
+                writer.writeheader()
+            writer.writerows(rows)
+
+
+def _ratio(numerator: float, denominator: float) -> float:
+    if not (denominator > 0 and math.isfinite(numerator)):
+        return math.nan
+    return numerator / denominator
+
+
+def _times(ratio: float) -> str:
+    return "-" if math.isnan(ratio) else f"{ratio:.2f}x"
+
+
+def _result_row(result: LoadResult) -> str:
+    values = result.percentiles()
+    cells = "".join(f"{_us(values[c]):>10}" for c in _LATENCY_COLUMNS)
+    missed = "-" if result.missed_deadlines is None else str(result.missed_deadlines)
+    errors = sum(result.errors.values())
+    return f"{result.label + ' (us)':<16}{cells}{result.throughput:>11.1f}{errors:>8}{missed:>8}"
+
+
+def _us(value: float) -> str:
+    return "-" if math.isnan(value) else f"{value:.0f}"
+
+
+def run_bench(
+    target: Target,
+    spec: LoadSpec,
+    baseline: bool = False,
+    progress: Callable[[str, LoadSpec], ProgressHook | None] | None = None,
+    segments: int = 1,
+) -> BenchReport:
+    """Load the server and (``baseline``) the echo with the same spec; returns both.
+
+    Args:
+        target: From ``probe``; its times replace ``spec.times`` for a query load.
+        spec: The load.
+        baseline: Also run the echo baseline.
+        progress: Given a run's label and spec, returns the hook to call while it runs.
+        segments: Split the run into this many parts, alternating server and echo (each part
+            ``spec.duration / segments`` long, with its own warm-up), so that a background load
+            that changes during the run weighs on both alike. Percentiles merge exactly (HDR).
+    """
+    if segments < 1:
+        raise BenchError(f"segments must be >= 1, got {segments}")
+    if spec.payload == "query":
+        spec = replace(spec, times=target.times, scene=target.scene)
+    session = secrets.token_hex(16)  # bench clients identify themselves as a real client does
+    spec = replace(spec, session=session)
+    part = replace(spec, duration=spec.duration / segments)
+
+    def hook(label: str, index: int) -> ProgressHook | None:
+        tag = f" {index + 1}/{segments}" if segments > 1 else ""
+        return progress(label + tag, part) if progress else None
+
+    servers: list[LoadResult] = []
+    echoes: list[LoadResult] = []
+    with contextlib.ExitStack() as stack:
+        echo = (
+            stack.enter_context(EchoServer(target.address, target.reply_bytes))
+            if baseline
+            else None
+        )
+        for index in range(segments):
+            servers.append(run_load(target.address, part, "server", hook("server", index)))
+            if echo is not None:
+                echoes.append(run_load(echo.address, part, "echo", hook("echo", index)))
+    return BenchReport(
+        target=target,
+        spec=spec,
+        server=LoadResult.combine(spec, servers),
+        baseline=LoadResult.combine(spec, echoes) if echoes else None,
+        segments=segments,
+    )
