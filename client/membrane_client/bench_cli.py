@@ -14,52 +14,19 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from membrane_client.argtypes import bounded_float, bounded_int
+
 __all__ = ["add_bench"]
+
+POSITIVE = bounded_float(0.0, exclusive=True)
+NON_NEGATIVE = bounded_float(0.0)
+FINITE = bounded_float()
+COUNT = bounded_int(1)
 
 logger = logging.getLogger(__name__)
 
 DEFAULT_ADDRESS = "tcp://127.0.0.1:5555"
 DEFAULT_RATE_HZ = 1000.0
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
-    return value
-
-
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
-
-
-def _finite_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be finite, got {text}")
-    return value
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
-    return value
 
 
 def add_bench(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -89,33 +56,33 @@ def add_bench(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
     load = parser.add_mutually_exclusive_group()
     load.add_argument(
         "--rate",
-        type=_positive_float,
+        type=POSITIVE,
         metavar="HZ",
         help=f"open loop: total requests per second (default {DEFAULT_RATE_HZ:g})",
     )
     load.add_argument(
         "--concurrency",
-        type=_positive_int,
+        type=COUNT,
         metavar="N",
         help="closed loop: total requests in flight",
     )
     parser.add_argument(
         "--clients",
-        type=_positive_int,
+        type=COUNT,
         default=1,
         metavar="N",
         help="client processes; --rate and --concurrency are totals (default 1)",
     )
     parser.add_argument(
         "--duration",
-        type=_positive_float,
+        type=POSITIVE,
         default=10.0,
         metavar="S",
         help="measured seconds (default 10)",
     )
     parser.add_argument(
         "--warmup",
-        type=_non_negative_float,
+        type=NON_NEGATIVE,
         default=1.0,
         metavar="S",
         help="seconds of load before measuring (default 1)",
@@ -125,21 +92,21 @@ def add_bench(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
     )
     parser.add_argument(
         "--t",
-        type=_finite_float,
+        type=FINITE,
         metavar="T",
         dest="fixed_t",
         help="query this time only, instead of cycling through the time steps",
     )
     parser.add_argument(
         "--deadline",
-        type=_positive_float,
+        type=POSITIVE,
         metavar="MS",
         help="open loop: a reply later than this is a missed deadline "
         "(default: one client period, 1000 * clients / rate ms)",
     )
     parser.add_argument(
         "--timeout",
-        type=_positive_float,
+        type=POSITIVE,
         default=1.0,
         metavar="S",
         help="seconds before a request counts as timed out (default 1)",
@@ -151,7 +118,7 @@ def add_bench(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
     )
     parser.add_argument(
         "--segments",
-        type=_positive_int,
+        type=COUNT,
         default=1,
         metavar="N",
         help="with --baseline: alternate server and echo N times, duration / N each, so that a "

@@ -12,57 +12,20 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 import sys
 import time
 
+from membrane_client.argtypes import bounded_float, bounded_int
 from membrane_client.client import DEFAULT_ADDRESS
 
 __all__ = ["add_coppelia"]
 
+POSITIVE = bounded_float(0.0, exclusive=True)
+NON_NEGATIVE = bounded_float(0.0)
+
 log = logging.getLogger(__name__)
 
 PROGRESS_EVERY_S = 1.0
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
-    return value
-
-
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
-
-
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
-
-
-def _port(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
-    if not 0 < value < 65536:
-        raise argparse.ArgumentTypeError(f"must be in 1..65535, got {text}")
-    return value
 
 
 def _color(text: str) -> tuple[float, float, float]:
@@ -97,16 +60,19 @@ def add_coppelia(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]
     parser.add_argument("--scene", default=None, help="scene name, where the server hosts several")
     parser.add_argument("--sim-host", default="127.0.0.1", help="CoppeliaSim host")
     parser.add_argument(
-        "--sim-port", type=_port, default=23000, help="CoppeliaSim ZeroMQ remote API port"
+        "--sim-port",
+        type=bounded_int(1, 65535, why="a TCP port"),
+        default=23000,
+        help="CoppeliaSim ZeroMQ remote API port",
     )
     parser.add_argument(
         "--duration",
-        type=_non_negative_float,
+        type=NON_NEGATIVE,
         default=None,
         help="simulation time to run to, s (default: the scene's end)",
     )
     parser.add_argument(
-        "--steps", type=_non_negative_int, default=None, help="stop after this many steps"
+        "--steps", type=bounded_int(0), default=None, help="stop after this many steps"
     )
     parser.add_argument(
         "--per-sphere",
@@ -117,20 +83,20 @@ def add_coppelia(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]
         "--keep", action="store_true", help="leave the spheres in the scene after the run"
     )
     parser.add_argument(
-        "--sphere-size", type=_positive_float, default=0.05, help="sphere diameter (world units)"
+        "--sphere-size", type=POSITIVE, default=0.05, help="sphere diameter (world units)"
     )
     parser.add_argument(
         "--color", type=_color, default=(0.85, 0.35, 0.30), help="sphere colour R,G,B in [0, 1]"
     )
     parser.add_argument(
         "--sim-timeout",
-        type=_positive_float,
+        type=POSITIVE,
         default=5.0,
         help="seconds to wait for each CoppeliaSim reply (default 5)",
     )
     parser.add_argument(
         "--timeout",
-        type=_positive_float,
+        type=POSITIVE,
         default=1.0,
         help="seconds to wait for each membrane server reply (default 1)",
     )

@@ -11,17 +11,9 @@ import shlex
 import sys
 from pathlib import Path
 
+from membrane_client.argtypes import bounded_int
+
 __all__ = ["add_tradeoff"]
-
-
-def _rounds(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 2:
-        raise argparse.ArgumentTypeError(f"must be >= 2 (the first sweep warms up), got {text}")
-    return value
 
 
 def add_tradeoff(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -55,7 +47,7 @@ def add_tradeoff(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]
         help="measure this scene only (repeatable): rope, rope-plucked, membrane",
     )  # fmt: skip
     parser.add_argument(
-        "--rounds", type=_rounds, default=6, metavar="N",
+        "--rounds", type=bounded_int(2, why='the first sweep warms up'), default=6, metavar="N",
         help="sweeps over the time grid per case, the first untimed (default 6)",
     )  # fmt: skip
     parser.set_defaults(handler=_run_tradeoff)
