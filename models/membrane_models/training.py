@@ -119,6 +119,17 @@ def _harmonic(features: int, decay: float = 0.0) -> dict[str, Any]:
     return spec
 
 
+# Both plucks share a network wide enough in frequency for the travelling corners.
+_PLUCKED: dict[str, Any] = {
+    "arch": {"name": "spinn", "rank": 64, "width": 64, "depth": 3,
+             "space_features": _harmonic(32, decay=1.0),
+             "time_features": _harmonic(32, decay=1.0)},
+    "iterations": 10000,
+    "lbfgs_fraction": 0.8,
+    "lbfgs_space_points": 256,
+    "lbfgs_time_points": 256,
+}
+
 # The shipped recipes (chosen by measurement, docs/MODELS.md) and the published configuration.
 RECIPES: dict[str, dict[str, Any]] = {
     "string-forced": {
@@ -130,27 +141,9 @@ RECIPES: dict[str, dict[str, Any]] = {
         "lbfgs_time_points": 256,
         "modal_modes": 16,
     },
-    "string-plucked": {
-        "arch": {"name": "spinn", "rank": 64, "width": 64, "depth": 3,
-                 "space_features": _harmonic(32, decay=1.0),
-                 "time_features": _harmonic(32, decay=1.0)},
-        "iterations": 10000,
-        "lbfgs_fraction": 0.8,
-        "lbfgs_space_points": 256,
-        "lbfgs_time_points": 256,
-        # The kinks are seen through the modal term only (see _kink_modes): more modes.
-        "modal_modes": 32,
-    },
-    "string-plucked-smooth": {
-        "arch": {"name": "spinn", "rank": 64, "width": 64, "depth": 3,
-                 "space_features": _harmonic(32, decay=1.0),
-                 "time_features": _harmonic(32, decay=1.0)},
-        "iterations": 10000,
-        "lbfgs_fraction": 0.8,
-        "lbfgs_space_points": 256,
-        "lbfgs_time_points": 256,
-        "modal_modes": 16,
-    },
+    # The kinks are seen through the modal term only (see _kink_modes): more modes.
+    "string-plucked": {**_PLUCKED, "modal_modes": 32},
+    "string-plucked-smooth": {**_PLUCKED, "modal_modes": 16},
     "membrane-forced": {
         "arch": {"name": "spinn", "rank": 48, "width": 64, "depth": 3,
                  "space_features": _harmonic(12), "time_features": _harmonic(12)},
