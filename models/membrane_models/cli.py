@@ -20,7 +20,7 @@ from membrane_models.problems import PROBLEMS, make_problem
 if TYPE_CHECKING:
     from membrane_models.problems import Problem
 
-__all__ = ["ExactUsageError", "add_exact", "parse_assignments"]
+__all__ = ["UsageError", "add_exact", "parse_assignments"]
 
 logger = logging.getLogger(__name__)
 
@@ -28,8 +28,8 @@ DEFAULT_POINTS = {1: 101, 2: 41}  # per spatial axis
 DEFAULT_TIMES = 101
 
 
-class ExactUsageError(ValueError):
-    """Bad command-line input: the dispatcher prints it in one line and exits with code 2."""
+class UsageError(ValueError):
+    """Bad input to a models command: the dispatcher prints it in one line, exit code 2."""
 
 
 def add_exact(subparsers: argparse._SubParsersAction) -> None:
@@ -71,7 +71,7 @@ def parse_assignments(assignments: list[str]) -> dict[str, str]:
     for item in assignments:
         name, sep, value = item.partition("=")
         if not sep or not name.strip() or not value.strip():
-            raise ExactUsageError(f"--set expects NAME=VALUE, got {item!r}")
+            raise UsageError(f"--set expects NAME=VALUE, got {item!r}")
         parsed[name.strip()] = value.strip()
     return parsed
 
@@ -80,7 +80,7 @@ def _grid_sizes(args: argparse.Namespace, problem: Problem) -> tuple[int, ...]:
     """Points per axis (space first, then time), checked."""
     dims = problem.spatial_dims
     if args.ny is not None and dims == 1:
-        raise ExactUsageError(f"--ny is only for 2-D problems; {problem.name} is 1-D")
+        raise UsageError(f"--ny is only for 2-D problems; {problem.name} is 1-D")
     nx = args.nx if args.nx is not None else DEFAULT_POINTS[dims]
     sizes = [("--nx", nx)]
     if dims == 2:
@@ -88,7 +88,7 @@ def _grid_sizes(args: argparse.Namespace, problem: Problem) -> tuple[int, ...]:
     sizes.append(("--nt", args.nt))
     for flag, n in sizes:
         if n < 2:
-            raise ExactUsageError(f"{flag} must be >= 2, got {n}")
+            raise UsageError(f"{flag} must be >= 2, got {n}")
     return tuple(n for _, n in sizes)
 
 
@@ -96,15 +96,15 @@ def _run_exact(args: argparse.Namespace) -> int:
     from membrane_models.exact import exact_solution  # scipy: the `server` extra
 
     if args.problem not in PROBLEMS:
-        raise ExactUsageError(
+        raise UsageError(
             f"unknown problem {args.problem!r}; known: {', '.join(sorted(PROBLEMS))}"
         )
     problem = make_problem(args.problem, parse_assignments(args.assignments))
     sizes = _grid_sizes(args, problem)
     if args.out.suffix != ".npz":
-        raise ExactUsageError(f"--out must name an .npz file, got {str(args.out)!r}")
+        raise UsageError(f"--out must name an .npz file, got {str(args.out)!r}")
     if not args.rtol > 0.0:
-        raise ExactUsageError(f"--rtol must be > 0, got {args.rtol}")
+        raise UsageError(f"--rtol must be > 0, got {args.rtol}")
 
     started = time.perf_counter()
     solution = exact_solution(problem, rtol=args.rtol)

@@ -14,21 +14,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from membrane_client.commands import UsageError
+from membrane_models.cli import UsageError, parse_assignments
 
 __all__ = ["add_evaluate", "add_export", "add_train", "train_command"]
 
 logger = logging.getLogger(__name__)
-
-
-def _parse_sets(items: list[str]) -> dict[str, str]:
-    overrides: dict[str, str] = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep or not name.strip():
-            raise UsageError(f"--set expects NAME=VALUE, got {item!r}")
-        overrides[name.strip()] = value.strip()
-    return overrides
 
 
 # ---------------------------------------------------------------- train
@@ -86,7 +76,7 @@ def _run_train(args: argparse.Namespace) -> int:
 
     from membrane_models.training import recipe, train
 
-    changes: dict[str, Any] = {"seed": args.seed, "overrides": _parse_sets(args.sets)}
+    changes: dict[str, Any] = {"seed": args.seed, "overrides": parse_assignments(args.sets)}
     if args.iterations is not None:
         if args.iterations <= 0:
             raise UsageError(f"--iterations must be > 0, got {args.iterations}")
