@@ -7,7 +7,9 @@ recipe (``membrane_models.training.RECIPES``). Both train on this machine, one a
 each for at most ``--budget`` seconds of training time; the relative L2 error against the exact
 solution on the standard grid is recorded every ``--every`` iterations (not counted in the time).
 
-Writes ``OUT/results.json``, ``OUT/table.md`` and ``OUT/curves.png``.
+Writes ``OUT/results.json``, ``OUT/table.md`` and ``OUT/curves.png``. Problems already in
+``OUT/results.json`` from an earlier run are kept (a rerun replaces only the problems it trains),
+so the problems can be run one at a time and still end in one table.
 
     python benchmarks/train_published_vs_ours.py --budget 900 --out runs/bench-train
 """
@@ -96,6 +98,14 @@ def _plot(results: dict[str, dict[str, list[tuple[float, float]]]], path: Path) 
     plt.close(fig)
 
 
+def _earlier_results(path: Path, rerun: list[str]) -> dict[str, dict[str, list[Any]]]:
+    """Results of problems that this run does not retrain, from an earlier run into ``OUT``."""
+    if not path.is_file():
+        return {}
+    earlier: dict[str, dict[str, list[Any]]] = json.loads(path.read_text())
+    return {problem: runs for problem, runs in earlier.items() if problem not in rerun}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--budget", type=float, default=900.0, help="seconds per run")
@@ -108,17 +118,20 @@ def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     torch.set_num_threads(1)  # on the shared 2-core machine a second thread only waits
     args.out.mkdir(parents=True, exist_ok=True)
-    results: dict[str, dict[str, list[tuple[float, float]]]] = {}
+    results = _earlier_results(args.out / "results.json", args.problems)
     for problem in args.problems:
+        ours = recipe(problem, monitor_every=args.every)
+        optimiser = "Adam + L-BFGS" if ours.lbfgs_iterations else "Adam"
         runs = {
             "published (STMsFFN, Adam)": recipe(problem, "stmsffn", monitor_every=args.every),
-            "ours (SPINN, Adam + L-BFGS)": recipe(problem, monitor_every=args.every),
+            f"ours (SPINN, {optimiser})": ours,
         }
         results[problem] = {}
         for label, config in runs.items():
             logger.info("%s: %s for up to %.0f s", problem, label, args.budget)
             results[problem][label] = run_one(config, args.budget)
-    (args.out / "results.json").write_text(json.dumps(results, indent=1))
+            # Written after every run, so that a stopped benchmark keeps what it measured.
+            (args.out / "results.json").write_text(json.dumps(results, indent=1))
     table = _table(results, args.budget)
     (args.out / "table.md").write_text(table)
     _plot(results, args.out / "curves.png")
