@@ -12,10 +12,7 @@ import torch
 from membrane_models.exact import exact_solution
 from membrane_models.problems import StringPlucked, make_problem
 from membrane_models.training import (
-    Collocation,
     TrainConfig,
-    _strong_modal_residual,
-    _weak_modal_residual,
     load_checkpoint,
     model_from_checkpoint,
     recipe,
@@ -112,43 +109,20 @@ def test_initial_shape_matches_the_exact_solution_at_t0(smoothing: str) -> None:
     np.testing.assert_allclose(got, expected, atol=1e-9 * problem.height)
 
 
-def _midpoint_collocation(n_x: int, n_t: int, forcing: torch.Tensor | None = None) -> Collocation:
-    x = (torch.arange(n_x, dtype=torch.float64) + 0.5) / n_x
-    t = ((torch.arange(n_t, dtype=torch.float64) + 0.5) / n_t)[:, None]
-    return Collocation([x], t, forcing=torch.zeros(n_x, n_t, dtype=torch.float64)
-                       if forcing is None else forcing)
+def test_modal_term_sees_the_kink_that_points_cannot() -> None:
+    # -c^2 times the sine coefficients of w'', by parts: 2 int w'' sin(n pi x) = -2 (n pi)^2 int w
+    # sin(n pi x), computed from the triangle itself on a fine midpoint grid.
+    from membrane_models.training import _kink_modes, build_model
 
-
-def test_weak_modal_residual_sees_the_kink_that_points_cannot() -> None:
-    # u = the triangle, at rest: at every point u_tt = c^2 u_xx = 0, yet the kink's w'' is a
-    # Dirac. The weak form must give -c^2 times its sine coefficients, 2 w''_n with
-    # int w'' sin(n pi x) = -(h / x0 + h / (1 - x0)) sin(n pi x0); the strong form sees nothing.
-    problem = make_problem("string-plucked")
+    model = build_model(recipe("string-plucked"))
+    problem = model.problem
     assert isinstance(problem, StringPlucked)
-    points = _midpoint_collocation(4000, 3)
-    x = points.space[0].numpy()
-    u = torch.from_numpy(np.repeat(problem.triangle(x)[:, None], 3, axis=1))
-    still = torch.zeros_like(u)
-    weak, wavenumber = _weak_modal_residual(u, still, still, points, problem.c**2, 5)
-    strong, _ = _strong_modal_residual(u, still, still, points, problem.c**2, 5)
+    x = (np.arange(4000) + 0.5) / 4000
     n = np.arange(1, 6)
-    dirac = -(problem.height / problem.x0 + problem.height / (1.0 - problem.x0))
-    expected = -(problem.c**2) * 2.0 * dirac * np.sin(np.pi * n * problem.x0)
-    np.testing.assert_allclose(weak[:, 0].numpy(), expected, rtol=1e-5)
-    np.testing.assert_allclose(wavenumber.numpy(), n)
-    assert float(strong.abs().max()) == 0.0
-
-
-def test_weak_and_strong_modal_residuals_agree_on_a_smooth_field() -> None:
-    # u = x (1 - x) e^x t^2 (zero on the ends), f = 1: both forms project the same residual.
-    c2, n_x = 4.0, 2000
-    points = _midpoint_collocation(n_x, 4, forcing=torch.ones(n_x, 4, dtype=torch.float64))
-    x, t = points.space[0][:, None], points.time[:, 0][None, :]
-    shape = x * (1 - x) * torch.exp(x)
-    shape_xx = -(x * x + 3 * x) * torch.exp(x)  # d2/dx2 of (x - x^2) e^x
-    u, u_tt = shape * t**2, shape * 2 + 0 * t
-    residual = u_tt - c2 * shape_xx * t**2 - 1.0
-    weak, _ = _weak_modal_residual(u, u_tt, residual, points, c2, 6)
-    strong, _ = _strong_modal_residual(u, u_tt, residual, points, c2, 6)
-    np.testing.assert_allclose(weak.numpy(), strong.numpy(), rtol=1e-4, atol=1e-6)
-    assert float(weak.abs().max()) > 0.1
+    by_parts = -2.0 * (np.pi * n) ** 2 * (np.sin(np.pi * np.outer(n, x)) @ problem.triangle(x))
+    expected = -(problem.c**2) * by_parts / 4000
+    got = _kink_modes(model, 5, torch.zeros(3, 1, dtype=torch.float64))
+    assert got is not None and got.shape == (5, 3)
+    np.testing.assert_allclose(got[:, 0].numpy(), expected, rtol=1e-5)
+    smooth = build_model(recipe("string-plucked-smooth"))
+    assert _kink_modes(smooth, 5, torch.zeros(3, 1, dtype=torch.float64)) is None
