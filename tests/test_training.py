@@ -83,6 +83,29 @@ def test_checkpoint_is_plain_data_and_resumes(tmp_path: Path) -> None:
     torch.testing.assert_close(model(x), resumed.model(x))
 
 
+def test_run_ends_with_the_mean_of_its_last_weights(tmp_path: Path) -> None:
+    seen: list[dict[str, torch.Tensor]] = []
+
+    def keep(model: Any) -> dict[str, float]:
+        seen.append({k: v.clone() for k, v in model.state_dict().items()})
+        return {}
+
+    config = _tiny(
+        "string-forced", iterations=12, lbfgs_fraction=0.0, average_window=4, monitor_every=1
+    )
+    result = train(config, monitor=keep, progress=False)
+    for name, value in result.model.state_dict().items():
+        expected = torch.stack([s[name] for s in seen[-4:]]).mean(0)
+        torch.testing.assert_close(value, expected)
+    final = result.model.state_dict()
+    assert any(not torch.equal(value, seen[-1][name]) for name, value in final.items())
+    # Stopped inside the window and resumed (Adam resumes bit for bit): the same mean.
+    train(config, out_dir=tmp_path, progress=False, until=10)
+    resumed = train(config, out_dir=tmp_path, resume=True, progress=False)
+    for name, value in resumed.model.state_dict().items():
+        torch.testing.assert_close(value, result.model.state_dict()[name])
+
+
 def test_resume_refuses_another_configuration(tmp_path: Path) -> None:
     train(_tiny("string-forced", iterations=5), out_dir=tmp_path, progress=False)
     with pytest.raises(ValueError, match="another configuration"):
