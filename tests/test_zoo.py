@@ -20,14 +20,15 @@ TARGETS = {
 # so that the miss is visible in every test run; strict, so a retrained model that meets its
 # target makes this list fail until it is updated.
 KNOWN_MISSES: dict[str, str] = {
-    "string-plucked-smooth": "relative L2 4.81e-3 against the 1e-3 target",
+    "string-plucked": "relative L2 1.30e-2 against the 1e-2 target",
+    "string-plucked-smooth": "relative L2 3.25e-3 against the 1e-3 target",
 }
 
 SHIPPED = list_models()
 
 
-def test_the_zoo_ships_models() -> None:
-    assert SHIPPED, "no model in the zoo"
+def test_the_zoo_ships_a_model_per_problem() -> None:
+    assert {"string-forced", "string-plucked", "membrane-forced"} <= set(SHIPPED)
 
 
 @pytest.mark.parametrize("name", SHIPPED)
