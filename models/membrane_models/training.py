@@ -370,9 +370,8 @@ def modal_term(
     mean-square residual hardly sees the error that dominates the relative L2 norm; this term
     measures that error directly: mean (e_n(t_j) / S)^2 over the modes of ``coeffs`` (the
     residual's sine coefficients, (modes, n_t), see ``_sine_coefficients`` and ``_kink_modes``)
-    and the time points. It is the residual under a
-    fixed linear operator: zero exactly where the residual is, and it uses nothing of the
-    solution.
+    and the time points. It is the residual under a fixed linear operator: zero exactly where
+    the residual is, and it uses nothing of the solution.
     """
     omega = c * math.pi * wavenumber  # (M,)
     error = _duhamel(coeffs, omega, t[:, 0])
