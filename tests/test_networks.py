@@ -5,7 +5,13 @@ from __future__ import annotations
 import pytest
 import torch
 
-from membrane_models.networks import SeparableCore, SeparablePINN, STMsFFN, build_core
+from membrane_models.networks import (
+    AxisNetwork,
+    SeparableCore,
+    SeparablePINN,
+    STMsFFN,
+    build_core,
+)
 from membrane_models.problems import StringPlucked, make_problem
 from membrane_models.transforms import PhysicalModel, characteristic_amplitude
 
@@ -13,10 +19,15 @@ D = torch.float64
 
 
 def _small_core(name: str, dims: int) -> SeparableCore:
-    if name == "spinn":
+    if name.startswith("spinn"):
         features = {"kind": "harmonic", "features": 3, "include_input": True}
-        return SeparablePINN(dims, rank=5, width=8, depth=2, space_features=features,
-                             time_features={"kind": "gaussian", "sigma": 2.0, "features": 3})
+        core = SeparablePINN(dims, rank=5, width=8, depth=2, space_features=features,
+                             time_features={"kind": "gaussian", "sigma": 2.0, "features": 3},
+                             skip=name == "spinn-skip")
+        for module in core.modules():  # the skip paths start at zero: give them weights
+            if isinstance(module, AxisNetwork) and module.skip is not None:
+                torch.nn.init.normal_(module.skip.weight)
+        return core
     return STMsFFN(dims, width=8, hidden=2, sigmas_x=[1.0], sigmas_t=[1.0, 5.0], shared=False)
 
 
@@ -33,6 +44,8 @@ CASES = [
     ("spinn", "string-forced"),
     ("spinn", "membrane-forced"),
     ("spinn", "string-plucked-smooth"),
+    ("spinn-skip", "string-plucked"),
+    ("spinn-skip", "membrane-forced"),
     ("stmsffn", "string-forced"),
     ("stmsffn", "membrane-forced"),
 ]
@@ -104,8 +117,10 @@ def test_plucked_model_starts_from_the_pluck() -> None:
 
 
 def test_build_core_round_trip_and_unknown_name() -> None:
-    core = _small_core("stmsffn", 1)
-    assert build_core(core.config()).config() == core.config()
+    for name in ("stmsffn", "spinn", "spinn-skip"):
+        core = _small_core(name, 1)
+        assert build_core(core.config()).config() == core.config()
+    assert "skip" not in _small_core("spinn", 1).config()  # earlier checkpoints still match
     with pytest.raises(ValueError, match="unknown architecture"):
         build_core({"name": "koopman"})
 

@@ -155,19 +155,44 @@ class TanhMLP(nn.Module):
 
 
 class AxisNetwork(nn.Module):
-    """An MLP over a few inputs, optionally behind a Fourier embedding; maps (n, d) -> (n, out)."""
+    """An MLP over a few inputs, optionally behind a Fourier embedding; maps (n, d) -> (n, out).
 
-    def __init__(self, embedding: FourierFeatures | None, sizes: Sequence[int]) -> None:
+    Args:
+        embedding: The Fourier embedding of the input (None: the raw input).
+        sizes: The MLP's layer widths, the embedding's width first.
+        skip: Add a linear map from the embedding straight to the output, starting at zero.
+            Through tanh layers a high harmonic is hard to reach (an MLP learns low frequencies
+            first); the skip path makes every harmonic of the embedding one weight away.
+    """
+
+    def __init__(
+        self, embedding: FourierFeatures | None, sizes: Sequence[int], skip: bool = False
+    ) -> None:
         super().__init__()
         self.embedding = embedding
         self.mlp = TanhMLP(sizes)
+        self.skip: nn.Linear | None = None
+        if skip:
+            self.skip = nn.Linear(sizes[0], sizes[-1], bias=False)
+            nn.init.zeros_(self.skip.weight)
 
     def forward(self, x: Tensor) -> Tensor:
-        return self.mlp(self.embedding(x) if self.embedding is not None else x)
+        features = self.embedding(x) if self.embedding is not None else x
+        out: Tensor = self.mlp(features)
+        if self.skip is not None:
+            out = out + self.skip(features)
+        return out
 
     def jet(self, x: Tensor) -> Jet:
         seed = Jet.seed(x)
-        return self.mlp.jet(self.embedding.jet(seed) if self.embedding is not None else seed)
+        features = self.embedding.jet(seed) if self.embedding is not None else seed
+        out = self.mlp.jet(features)
+        if self.skip is not None:
+            w = self.skip.weight.T
+            out = Jet(
+                out.value + features.value @ w, out.d1 + features.d1 @ w, out.d2 + features.d2 @ w
+            )
+        return out
 
 
 class SeparableCore(nn.Module):
@@ -235,6 +260,7 @@ class SeparablePINN(SeparableCore):
         space_features: Fourier embedding of each space axis (None for the raw coordinate).
         time_features: Fourier embedding of the time axis (None for the raw coordinate).
         seed: Seed of the (random) Fourier frequencies and of the initial weights.
+        skip: Give every axis network a linear path from its embedding (``AxisNetwork``).
     """
 
     def __init__(
@@ -246,6 +272,7 @@ class SeparablePINN(SeparableCore):
         space_features: dict[str, Any] | None = None,
         time_features: dict[str, Any] | None = None,
         seed: int = 0,
+        skip: bool = False,
     ) -> None:
         super().__init__()
         generator = torch.Generator().manual_seed(seed)
@@ -262,11 +289,13 @@ class SeparablePINN(SeparableCore):
             "time_features": time_features,
             "seed": seed,
         }
+        if skip:  # only when set, so that earlier checkpoints' configs stay equal
+            self._config["skip"] = True
 
         def axis(features: dict[str, Any] | None) -> AxisNetwork:
             embedding = _fourier(1, features, generator) if features else None
             first = embedding.out_dim if embedding is not None else 1
-            return AxisNetwork(embedding, [first] + [width] * depth + [rank])
+            return AxisNetwork(embedding, [first] + [width] * depth + [rank], skip=skip)
 
         self.space_axes = nn.ModuleList(axis(space_features) for _ in range(spatial_dims))
         self.time_axis = axis(time_features)
