@@ -149,3 +149,22 @@ def test_modal_term_sees_the_kink_that_points_cannot() -> None:
     np.testing.assert_allclose(got[:, 0].numpy(), expected, rtol=1e-5)
     smooth = build_model(recipe("string-plucked-smooth"))
     assert _kink_modes(smooth, 5, torch.zeros(3, 1, dtype=torch.float64)) is None
+
+
+@pytest.mark.parametrize(("every", "grids"), [(0, 1), (5, 3)])
+def test_lbfgs_grid_is_redrawn_on_schedule_or_kept(
+    monkeypatch: pytest.MonkeyPatch, every: int, grids: int
+) -> None:
+    import membrane_models.training as training
+
+    drawn: list[bool] = []
+    original = training.sample_collocation
+
+    def counting(problem: Any, config: TrainConfig, generator: Any, fine: bool = False) -> Any:
+        drawn.append(fine)
+        return original(problem, config, generator, fine=fine)
+
+    monkeypatch.setattr(training, "sample_collocation", counting)
+    config = _tiny("string-forced", lbfgs_resample_every=every)  # 15 L-BFGS iterations
+    train(config, progress=False)
+    assert sum(drawn) == grids

@@ -67,7 +67,8 @@ class TrainConfig:
         lbfgs_space_points: Fixed grid for L-BFGS, per space axis.
         lbfgs_time_points: Fixed grid for L-BFGS, time axis.
         lbfgs_resample_every: L-BFGS iterations between fresh grids (and a fresh curvature
-            history), so that it cannot fit one grid at the expense of the points in between.
+            history), so that it cannot fit one grid at the expense of the points in between;
+            0: one grid for the whole phase.
         modal_modes: Add the ``modal`` loss term with this many sine modes per space axis
             (0: off; grid sampling only). See ``modal_term``.
         modal_weight: The modal term's weight in the loss (the residual's is 1).
@@ -163,7 +164,7 @@ RECIPES: dict[str, dict[str, Any]] = {
     # Smooth enough for one fixed L-BFGS grid: redrawing it every 250 iterations restarted
     # L-BFGS's curvature history each time and left the fit wandering at 3e-3.
     "string-plucked-smooth": {**_PLUCKED, "modal_modes": 48, "iterations": 20000,
-                              "lbfgs_fraction": 0.895, "lbfgs_resample_every": 1_000_000},
+                              "lbfgs_fraction": 0.895, "lbfgs_resample_every": 0},
     "membrane-forced": {
         "arch": {"name": "spinn", "rank": 48, "width": 64, "depth": 3,
                  "space_features": _harmonic(12), "time_features": _harmonic(12)},
@@ -598,7 +599,8 @@ def train(
                 terms = _adam_step(model, adam, config, generator, iteration)
             else:
                 lbfgs_done = iteration - config.adam_iterations
-                if fine is None or (lbfgs_done and lbfgs_done % config.lbfgs_resample_every == 0):
+                every = config.lbfgs_resample_every
+                if fine is None or (every and lbfgs_done and lbfgs_done % every == 0):
                     fine = sample_collocation(problem, config, generator, fine=True)
                     lbfgs.state.clear()
                     lbfgs_scale = None
