@@ -13,6 +13,7 @@ from membrane_models.exact import exact_solution
 from membrane_models.problems import StringPlucked, make_problem
 from membrane_models.training import (
     TrainConfig,
+    build_model,
     load_checkpoint,
     model_from_checkpoint,
     recipe,
@@ -37,10 +38,16 @@ def _tiny(problem: str, **changes: Any) -> TrainConfig:
     return recipe(problem, **base)
 
 
-@pytest.mark.parametrize("problem", ["string-forced", "membrane-forced", "string-plucked-smooth"])
+@pytest.mark.parametrize(
+    "problem", ["string-forced", "membrane-forced", "string-plucked", "string-plucked-smooth"]
+)
 def test_short_run_loss_falls(problem: str) -> None:
+    # The loss the optimiser minimises: the sum of its terms.
     result = train(_tiny(problem), progress=False)
-    losses = [h["residual"] for h in result.history]
+    bookkeeping = ("iteration", "wall_time")
+    terms = [{k: v for k, v in h.items() if k not in bookkeeping} for h in result.history]
+    assert {"residual", "modal"} <= set(terms[-1])
+    losses = [sum(t.values()) for t in terms]
     assert len(losses) == 60
     assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
 
@@ -135,20 +142,43 @@ def test_initial_shape_matches_the_exact_solution_at_t0(smoothing: str) -> None:
 def test_modal_term_sees_the_kink_that_points_cannot() -> None:
     # -c^2 times the sine coefficients of w'', by parts: 2 int w'' sin(n pi x) = -2 (n pi)^2 int w
     # sin(n pi x), computed from the triangle itself on a fine midpoint grid.
-    from membrane_models.training import _kink_modes, build_model
+    from membrane_models.training import _kink_coefficients
 
-    model = build_model(recipe("string-plucked"))
-    problem = model.problem
+    problem = make_problem("string-plucked")
     assert isinstance(problem, StringPlucked)
     x = (np.arange(4000) + 0.5) / 4000
     n = np.arange(1, 6)
     by_parts = -2.0 * (np.pi * n) ** 2 * (np.sin(np.pi * np.outer(n, x)) @ problem.triangle(x))
     expected = -(problem.c**2) * by_parts / 4000
-    got = _kink_modes(model, 5, torch.zeros(3, 1, dtype=torch.float64))
-    assert got is not None and got.shape == (5, 3)
-    np.testing.assert_allclose(got[:, 0].numpy(), expected, rtol=1e-5)
+    got = _kink_coefficients(problem, 5, torch.float64)
+    assert got is not None and got.shape == (5,)
+    np.testing.assert_allclose(got.numpy(), expected, rtol=1e-5)
+    smooth = make_problem("string-plucked-smooth")
+    assert _kink_coefficients(smooth, 5, torch.float64) is None
+
+
+def test_pointwise_residual_sees_the_kink_through_its_first_modes() -> None:
+    # On a midpoint grid, the series added to the pointwise residual has exactly the Dirac's
+    # sine coefficients up to kink_modes and none above.
+    from membrane_models.training import (
+        Collocation,
+        _kink_coefficients,
+        _kink_series,
+        _sine_coefficients,
+    )
+
+    model = build_model(recipe("string-plucked"))
+    x = (torch.arange(512, dtype=torch.float64) + 0.5) / 512
+    points = Collocation([x], torch.zeros(3, 1, dtype=torch.float64))
+    series = _kink_series(model, 8, points)
+    assert series is not None and series.shape == (512, 1)
+    coeffs, _ = _sine_coefficients(series, [x], 12)
+    expected = _kink_coefficients(model.problem, 8, torch.float64)
+    assert expected is not None
+    np.testing.assert_allclose(coeffs[:8, 0].numpy(), expected.numpy(), rtol=1e-9)
+    np.testing.assert_allclose(coeffs[8:, 0].numpy(), 0.0, atol=1e-9 * float(expected.abs().max()))
     smooth = build_model(recipe("string-plucked-smooth"))
-    assert _kink_modes(smooth, 5, torch.zeros(3, 1, dtype=torch.float64)) is None
+    assert _kink_series(smooth, 8, points) is None
 
 
 @pytest.mark.parametrize(("every", "grids"), [(0, 1), (5, 3)])
@@ -168,3 +198,34 @@ def test_lbfgs_grid_is_redrawn_on_schedule_or_kept(
     config = _tiny("string-forced", lbfgs_resample_every=every)  # 15 L-BFGS iterations
     train(config, progress=False)
     assert sum(drawn) == grids
+
+
+@pytest.mark.parametrize("problem", ["string-forced", "string-plucked", "membrane-forced"])
+def test_projected_residual_is_the_projection_of_the_pointwise_residual(problem: str) -> None:
+    # By parts on a uniform grid against the pointwise residual projected on a fine one
+    # (the kinked pluck's Dirac added analytically on both sides).
+    from membrane_models.training import (
+        _forcing_grid,
+        _kink_coefficients,
+        _projected_residual,
+        _sine_coefficients,
+    )
+
+    model = build_model(recipe(problem))
+    with torch.no_grad():
+        coeffs, wavenumber, times = _projected_residual(model, 6, 256)
+        dims = model.spatial_dims
+        n = 2048 if dims == 1 else 256
+        axis = (torch.arange(n, dtype=torch.float64) + 0.5) / n
+        space, time = model.space_grid_jet([axis] * dims), model.time_jet(times)
+        c2 = model.problem.c**2
+        residual = space.value @ time.d2[0].T - c2 * space.laplacian() @ time.value.T
+        residual = residual - _forcing_grid(model.problem, [axis] * dims, times[:, 0])
+        expected, _ = _sine_coefficients(residual, [axis] * dims, 6)
+        kink = _kink_coefficients(model.problem, 6, torch.float64)
+        if kink is not None:
+            expected = expected + kink[:, None]
+    assert coeffs.shape == expected.shape == (6**dims, 256)
+    assert wavenumber.shape == (6**dims,) and times.shape == (256, 1)
+    scale = float(expected.abs().max())
+    np.testing.assert_allclose(coeffs.numpy(), expected.numpy(), atol=1e-5 * scale)

@@ -16,13 +16,6 @@ TARGETS = {
     "membrane-forced": 3e-3,
 }
 
-# Shipped models that miss their target, with the measured figure (docs/MODELS.md). Listed here
-# so that the miss is visible in every test run; strict, so a retrained model that meets its
-# target makes this list fail until it is updated.
-KNOWN_MISSES: dict[str, str] = {
-    "string-plucked": "relative L2 1.19e-2 against the 1e-2 target",
-}
-
 SHIPPED = list_models()
 
 
@@ -38,16 +31,7 @@ def test_error_matches_manifest(name: str) -> None:
     assert f"{report.max_abs:.3g}" == f"{manifest.error['max_abs']:.3g}"
 
 
-@pytest.mark.parametrize(
-    "name",
-    [
-        pytest.param(name, marks=pytest.mark.xfail(reason=KNOWN_MISSES[name], strict=True))
-        if name in KNOWN_MISSES
-        else name
-        for name in SHIPPED
-        if name in TARGETS
-    ],
-)
+@pytest.mark.parametrize("name", [name for name in SHIPPED if name in TARGETS])
 def test_meets_its_target(name: str) -> None:
     manifest = resolve_model(name)
     assert manifest.error["relative_l2"] <= TARGETS[name]
