@@ -136,8 +136,8 @@ def _harmonic(features: int, decay: float = 0.0) -> dict[str, Any]:
 # in which the modal term outweighs the pointwise residual: near a corner a smooth network can
 # only round the kink off, so that residual stays large and would otherwise decide the fit.
 # Sine mode n rings at c n pi, which is harmonic c t_end n of the time features (64 reach mode
-# 32 here), and the skip paths put every harmonic one weight from the output: through tanh
-# layers alone, modes above 16 were never learned (docs/MODELS.md).
+# 32; the kinked pluck takes 128), and the skip paths put every harmonic one weight from the
+# output: through tanh layers alone, modes above 16 were never learned (docs/MODELS.md).
 _PLUCKED: dict[str, Any] = {
     "arch": {"name": "spinn", "rank": 64, "width": 64, "depth": 3,
              "space_features": _harmonic(32, decay=1.0),
@@ -163,11 +163,15 @@ RECIPES: dict[str, dict[str, Any]] = {
         # at their natural frequencies), which only the modal term sees: weigh it up.
         "modal_weight": 100.0,
     },
-    # The kink's Dirac (w'' at x0) is seen through its first 32 sine modes, in the pointwise
+    # The kink's Dirac (w'' at x0) is seen through its first 64 sine modes, in the pointwise
     # residual and, analytically, in the modal term; that term projects on its own uniform grid,
     # so that one fixed L-BFGS grid serves: on the drawn grids the network cancelled its
-    # low-mode residual in the grid's quadrature instead (docs/MODELS.md).
-    "string-plucked": {**_PLUCKED, "modal_modes": 32, "kink_modes": 32, "modal_points": 256,
+    # low-mode residual in the grid's quadrature instead (docs/MODELS.md). Mode 64 rings at
+    # time harmonic 128.
+    "string-plucked": {**_PLUCKED,
+                       "arch": {**_PLUCKED["arch"], "space_features": _harmonic(64, decay=1.0),
+                                "time_features": _harmonic(128, decay=1.0)},
+                       "modal_modes": 64, "kink_modes": 64, "modal_points": 256,
                        "iterations": 12000, "lbfgs_fraction": 0.825,
                        "lbfgs_resample_every": 0},
     # One fixed L-BFGS grid: redrawing it every 250 iterations restarted L-BFGS's curvature
