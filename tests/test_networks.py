@@ -98,6 +98,16 @@ def test_full_output_is_space_times_time(arch: str, problem_name: str) -> None:
     torch.testing.assert_close(model(xt).reshape(7, 5), grid)
 
 
+@pytest.mark.parametrize(("arch", "problem_name"), CASES)
+def test_space_on_a_grid_is_space_at_its_points(arch: str, problem_name: str) -> None:
+    problem = make_problem(problem_name)
+    model = PhysicalModel(_small_core(arch, problem.spatial_dims), problem, 1e-3).double()
+    axes = [torch.rand(n, dtype=D) for n in (6, 4)[: problem.spatial_dims]]
+    mesh = torch.meshgrid(*axes, indexing="ij")
+    points = torch.stack([m.reshape(-1) for m in mesh], 1)
+    torch.testing.assert_close(model.space_grid(axes), model.space(points))
+
+
 def test_hard_conditions_hold_for_an_untrained_network() -> None:
     problem = make_problem("membrane-forced")
     model = PhysicalModel(_small_core("spinn", 2), problem, 1e-3).double()

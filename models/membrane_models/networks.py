@@ -213,10 +213,13 @@ class SeparableCore(nn.Module):
         """A with its derivatives at points x of shape (n, d)."""
         raise NotImplementedError
 
+    def space_grid(self, axes: Sequence[Tensor]) -> Tensor:
+        """A on the Cartesian product of 1-D coordinates ('ij' order)."""
+        return self.space(grid_points(axes))
+
     def space_grid_jet(self, axes: Sequence[Tensor]) -> Jet:
         """A with its derivatives on the Cartesian product of 1-D coordinates ('ij' order)."""
-        mesh = torch.meshgrid(*axes, indexing="ij")
-        return self.space_jet(torch.stack([m.reshape(-1) for m in mesh], dim=1))
+        return self.space_jet(grid_points(axes))
 
     def time(self, t: Tensor) -> Tensor:
         raise NotImplementedError
@@ -313,6 +316,13 @@ class SeparablePINN(SeparableCore):
         jets = [_axis(net).jet(x[:, i : i + 1]) for i, net in enumerate(self.space_axes)]
         return _product_of_axes(jets, lambda a, b: a * b)
 
+    def space_grid(self, axes: Sequence[Tensor]) -> Tensor:
+        values = [net(s[:, None]) for net, s in zip(self.space_axes, axes, strict=True)]
+        a: Tensor = values[0]
+        for b in values[1:]:
+            a = (a[:, None, :] * b[None, :, :]).reshape(-1, self.rank)
+        return a
+
     def space_grid_jet(self, axes: Sequence[Tensor]) -> Jet:
         # Each axis network runs on its own 1-D coordinates only: the point of SPINN.
         jets = [_axis(net).jet(s[:, None]) for net, s in zip(self.space_axes, axes, strict=True)]
@@ -328,6 +338,12 @@ class SeparablePINN(SeparableCore):
     def time_jet(self, t: Tensor) -> Jet:
         jet: Jet = self.time_axis.jet(t)
         return jet
+
+
+def grid_points(axes: Sequence[Tensor]) -> Tensor:
+    """The Cartesian product of 1-D coordinates as points (n, d), 'ij' order."""
+    mesh = torch.meshgrid(*axes, indexing="ij")
+    return torch.stack([m.reshape(-1) for m in mesh], dim=1)
 
 
 def _axis(module: nn.Module) -> AxisNetwork:

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from membrane_models.networks import Jet, SeparableCore
+from membrane_models.networks import Jet, SeparableCore, grid_points
 from membrane_models.problems import MembraneForced, Problem, StringForced, StringPlucked
 
 __all__ = [
@@ -153,8 +153,15 @@ class PhysicalModel(nn.Module):
 
     def space(self, x: Tensor) -> Tensor:
         """A (n, rank) at points x of shape (n, d)."""
+        return self._finish_space(self.core.space(x), x)
+
+    def space_grid(self, axes: Sequence[Tensor]) -> Tensor:
+        """A on the Cartesian product of 1-D space coordinates ('ij' order)."""
+        return self._finish_space(self.core.space_grid(axes), grid_points(axes))
+
+    def _finish_space(self, net: Tensor, x: Tensor) -> Tensor:
         boundary = torch.prod(x * (1.0 - x), dim=1, keepdim=True)
-        a = self.scale * boundary * self.core.space(x)
+        a = self.scale * boundary * net
         if self.plucked:
             assert isinstance(self.problem, StringPlucked)
             a = torch.cat([a, initial_shape_jet(self.problem, x[:, :1])[0]], dim=1)
@@ -181,9 +188,7 @@ class PhysicalModel(nn.Module):
 
     def space_grid_jet(self, axes: Sequence[Tensor]) -> Jet:
         """A and its derivatives on the Cartesian product of 1-D space coordinates."""
-        mesh = torch.meshgrid(*axes, indexing="ij")
-        points = torch.stack([m.reshape(-1) for m in mesh], dim=1)
-        return self._finish_space_jet(self.core.space_grid_jet(axes), points)
+        return self._finish_space_jet(self.core.space_grid_jet(axes), grid_points(axes))
 
     def space_jet(self, points: Tensor) -> Jet:
         """A and its derivatives at points of shape (n, d)."""
