@@ -15,6 +15,7 @@ chain rule is a few tensor operations and the parameter gradients flow through t
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections.abc import Callable, Sequence
@@ -318,18 +319,14 @@ class SeparablePINN(SeparableCore):
 
     def space_grid(self, axes: Sequence[Tensor]) -> Tensor:
         values = [net(s[:, None]) for net, s in zip(self.space_axes, axes, strict=True)]
-        a: Tensor = values[0]
-        for b in values[1:]:
-            a = (a[:, None, :] * b[None, :, :]).reshape(-1, self.rank)
-        return a
+        return functools.reduce(_outer_rows, values)
 
     def space_grid_jet(self, axes: Sequence[Tensor]) -> Jet:
         # Each axis network runs on its own 1-D coordinates only: the point of SPINN.
         jets = [_axis(net).jet(s[:, None]) for net, s in zip(self.space_axes, axes, strict=True)]
         if self.spatial_dims == 1:
             return jets[0]
-        r = self.rank
-        return _product_of_axes(jets, lambda a, b: (a[:, None, :] * b[None, :, :]).reshape(-1, r))
+        return _product_of_axes(jets, _outer_rows)
 
     def time(self, t: Tensor) -> Tensor:
         out: Tensor = self.time_axis(t)
@@ -344,6 +341,11 @@ def grid_points(axes: Sequence[Tensor]) -> Tensor:
     """The Cartesian product of 1-D coordinates as points (n, d), 'ij' order."""
     mesh = torch.meshgrid(*axes, indexing="ij")
     return torch.stack([m.reshape(-1) for m in mesh], dim=1)
+
+
+def _outer_rows(a: Tensor, b: Tensor) -> Tensor:
+    """Every row of a times every row of b, (n, r) and (m, r) -> (n m, r) in 'ij' order."""
+    return (a[:, None, :] * b[None, :, :]).reshape(-1, a.shape[-1])
 
 
 def _axis(module: nn.Module) -> AxisNetwork:

@@ -391,24 +391,31 @@ def _projected_residual(
     """
     problem, c2 = model.problem, model.problem.c**2
     dtype = next(model.parameters()).dtype
-    axes = [(torch.arange(points, dtype=dtype) + 0.5) / points] * model.spatial_dims
+    axes, times = _midpoint_grid(problem, points, dtype)
     a, wavenumber = _sine_coefficients(model.space_grid(axes), axes, modes)
     kink = _kink_coefficients(problem, modes, dtype)
     if kink is not None:
         a = torch.cat([a[:, :-1], (kink / (c2 * (math.pi * wavenumber) ** 2))[:, None]], 1)
-    times = (torch.arange(points, dtype=dtype)[:, None] + 0.5) * (problem.t_end / points)
-    jet = model.time_jet(times)
+    jet = model.time_jet(times[:, None])
     coeffs = a @ jet.d2[0].T + (c2 * (math.pi * wavenumber) ** 2)[:, None] * (a @ jet.value.T)
     if not isinstance(problem, StringPlucked):
         coeffs = coeffs - _forcing_coefficients(problem, modes, points, dtype)
-    return coeffs, wavenumber, times
+    return coeffs, wavenumber, times[:, None]
+
+
+def _midpoint_grid(
+    problem: Problem, points: int, dtype: torch.dtype
+) -> tuple[list[Tensor], Tensor]:
+    """The projection's uniform midpoint grid: ``points`` per space axis and in time."""
+    unit = (torch.arange(points, dtype=dtype) + 0.5) / points
+    times = (torch.arange(points, dtype=dtype) + 0.5) * (problem.t_end / points)
+    return [unit] * problem.spatial_dims, times
 
 
 @functools.lru_cache(maxsize=4)
 def _forcing_coefficients(problem: Problem, modes: int, points: int, dtype: torch.dtype) -> Tensor:
     """f's sine coefficients on ``_projected_residual``'s grid (fixed, so computed once)."""
-    axes = [(torch.arange(points, dtype=dtype) + 0.5) / points] * problem.spatial_dims
-    times = (torch.arange(points, dtype=dtype) + 0.5) * (problem.t_end / points)
+    axes, times = _midpoint_grid(problem, points, dtype)
     return _sine_coefficients(_forcing_grid(problem, axes, times), axes, modes)[0]
 
 
