@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
@@ -19,19 +20,24 @@ from membrane_client.errors import ProtocolError, ServerError
 __all__ = [
     "ARRAY_DTYPES",
     "MAX_LATTICE_POINTS",
+    "MAX_NESTING",
     "MAX_REPLY_BYTES",
     "MAX_REQUEST_BYTES",
     "MAX_SESSION_CHARS",
     "PROTOCOL_VERSION",
     "Domain",
+    "EncodedFields",
     "ErrorCode",
     "Op",
     "check_reply",
     "decode",
     "encode",
+    "encode_fields",
+    "encode_ok_reply",
     "error_reply",
     "ok_reply",
     "pack_array",
+    "preview",
     "request",
     "unpack_array",
 ]
@@ -43,6 +49,11 @@ MAX_REQUEST_BYTES = 64 * 1024
 MAX_REPLY_BYTES = 64 * 1024 * 1024
 MAX_LATTICE_POINTS = 65_536
 MAX_SESSION_CHARS = 64
+# No message of the protocol nests deeper than 4 levels (a reply's describe fields); a bound well
+# above that keeps every walk over a decoded message, and every repr of one, shallow.
+MAX_NESTING = 32
+# How much of a client's value an error message or a log line shows.
+_PREVIEW_CHARS = 64
 
 # Little-endian float32 for displacements, float64 for coordinates (never lose digits of a time
 # or a position on the wire).
@@ -86,17 +97,60 @@ def encode(message: Mapping[str, Any]) -> bytes:
     return data
 
 
-def decode(data: bytes) -> dict[str, Any]:
-    """Parse one message; raises ProtocolError unless it is a msgpack map with str keys."""
+def decode(data: bytes, max_bytes: int = MAX_REPLY_BYTES) -> dict[str, Any]:
+    """Parse one message; raises ProtocolError unless it is a msgpack map with str keys, at most
+    ``max_bytes`` long and nested at most ``MAX_NESTING`` levels deep."""
+    if len(data) > max_bytes:
+        raise ProtocolError(f"a message of {len(data)} bytes, more than the limit {max_bytes}")
     try:
-        message = msgpack.unpackb(data, raw=False, strict_map_key=True)
+        # No string, array or map inside can be longer than the message itself.
+        message = msgpack.unpackb(
+            data,
+            raw=False,
+            strict_map_key=True,
+            max_str_len=len(data),
+            max_bin_len=len(data),
+            max_array_len=len(data),
+            max_map_len=len(data),
+            max_ext_len=len(data),
+        )
     except Exception as exc:  # msgpack raises a zoo of types on garbage; all mean the same here
-        raise ProtocolError(f"not a msgpack message: {type(exc).__name__}: {exc}") from None
+        reason = preview(str(exc))
+        raise ProtocolError(f"not a msgpack message: {type(exc).__name__}: {reason}") from None
     if not isinstance(message, dict):
         raise ProtocolError(f"a message must be a msgpack map, got {type(message).__name__}")
     if not all(isinstance(key, str) for key in message):
         raise ProtocolError("a message's keys must all be strings")
+    if _nesting_exceeds(message, MAX_NESTING):
+        raise ProtocolError(f"a message may nest at most {MAX_NESTING} levels deep")
     return message
+
+
+def preview(value: Any) -> str:
+    """A short, bounded text for a value a peer sent: for error messages and log lines.
+
+    Containers are named, never formatted (a deep or large one would cost unbounded time and
+    memory, or a RecursionError); scalars are shown up to a fixed number of characters.
+    """
+    if isinstance(value, dict | list | tuple):
+        return f"a {'map' if isinstance(value, dict) else 'array'} of {len(value)}"
+    if isinstance(value, str | bytes):
+        text = repr(value[:_PREVIEW_CHARS])
+        return text if len(value) <= _PREVIEW_CHARS else f"{text}... ({len(value)} long)"
+    text = repr(value)
+    return text if len(text) <= _PREVIEW_CHARS else text[:_PREVIEW_CHARS] + "..."
+
+
+def _nesting_exceeds(message: dict[str, Any], limit: int) -> bool:
+    """True when containers nest more than ``limit`` levels (iterative: no recursion)."""
+    pending: list[tuple[Any, int]] = [(message, 1)]
+    while pending:
+        container, depth = pending.pop()
+        if depth > limit:
+            return True
+        values = container.values() if isinstance(container, dict) else container
+        pending.extend((v, depth + 1) for v in values if isinstance(v, dict | list))
+    return False
 
 
 def request(op: str, request_id: int, **fields: Any) -> dict[str, Any]:
@@ -109,6 +163,31 @@ def request(op: str, request_id: int, **fields: Any) -> dict[str, Any]:
 def ok_reply(request_id: int | None, **fields: Any) -> dict[str, Any]:
     """Build a success reply to the request with this id."""
     return {"v": PROTOCOL_VERSION, "id": request_id, "ok": True, **fields}
+
+
+@dataclass(frozen=True)
+class EncodedFields:
+    """A reply's fields serialised once, to be sent to many requests (``encode_ok_reply``)."""
+
+    count: int
+    data: bytes
+
+
+def encode_fields(fields: Mapping[str, Any]) -> EncodedFields:
+    """Serialise a success reply's fields (everything but the envelope) once."""
+    packer = msgpack.Packer(use_bin_type=True)
+    data = b"".join(packer.pack(key) + packer.pack(value) for key, value in fields.items())
+    return EncodedFields(len(fields), data)
+
+
+def encode_ok_reply(request_id: int | None, fields: EncodedFields) -> bytes:
+    """The bytes of ``encode(ok_reply(request_id, **fields))``, without serialising the fields
+    again (a large ``describe`` is encoded once per scene, not once per request)."""
+    packer = msgpack.Packer(use_bin_type=True)
+    envelope = {"v": PROTOCOL_VERSION, "id": request_id, "ok": True}
+    header = packer.pack_map_header(len(envelope) + fields.count)
+    body = b"".join(packer.pack(key) + packer.pack(value) for key, value in envelope.items())
+    return header + body + fields.data
 
 
 def error_reply(request_id: int | None, code: ErrorCode | str, message: str) -> dict[str, Any]:

@@ -102,7 +102,15 @@ class Manifest:
         if role not in self.graphs:
             raise ManifestError(f"model {self.name!r} has no {role!r} graph")
         base = self.path.parent if self.path is not None else Path.cwd()
-        return base / self.graphs[role].file
+        name = self.graphs[role].file
+        # A graph lies beside its manifest: a path out of that folder would let a manifest
+        # (which may come from elsewhere than the model's author) load any file.
+        if Path(name).name != name or name in ("", ".", ".."):
+            raise ManifestError(
+                f"model {self.name!r}: graph file {name[:64]!r} must be a file name in the "
+                "manifest's own folder (no directories, no '..')"
+            )
+        return base / name
 
     def verify(self, role: str) -> Path:
         """Check one graph file against its sha256; returns its path."""

@@ -26,6 +26,11 @@ def resolve_model(name_or_path: str | Path) -> Manifest:
     text = str(name_or_path)
     path = Path(text)
     if path.suffix not in (".json", ".onnx"):
+        if path.name != text or text in ("", ".", ".."):  # a zoo name, never a way out of it
+            raise ManifestError(
+                f"unknown model {text[:64]!r}: a zoo model's name has no '/' or '..' (a model "
+                "file is named by its .json or .onnx path)"
+            )
         candidate = ZOO_DIR / f"{text}.json"
         if not candidate.is_file():
             known = ", ".join(list_models()) or "none shipped"

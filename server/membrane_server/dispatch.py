@@ -7,6 +7,7 @@ gets exactly one reply.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
@@ -25,13 +26,17 @@ from membrane_client.protocol import (
     MAX_REQUEST_BYTES,
     MAX_SESSION_CHARS,
     PROTOCOL_VERSION,
+    EncodedFields,
     ErrorCode,
     Op,
     decode,
     encode,
+    encode_fields,
+    encode_ok_reply,
     error_reply,
     ok_reply,
     pack_array,
+    preview,
 )
 from membrane_server.evaluators import Evaluator, build_evaluator
 from membrane_server.scene import Scene, load_scene
@@ -52,12 +57,18 @@ UNITS = {
 }
 
 
+_DISTRIBUTIONS = ("membrane-tissue", "membrane")
+
+
+@functools.cache
 def server_version() -> str:
-    """'membrane X.Y.Z' from the installed distribution."""
-    try:
-        return f"membrane {metadata.version('membrane')}"
-    except metadata.PackageNotFoundError:
-        return "membrane (not installed)"
+    """'membrane X.Y.Z' from the installed distribution (read once: ``hello`` must stay cheap)."""
+    for distribution in _DISTRIBUTIONS:
+        try:
+            return f"membrane {metadata.version(distribution)}"
+        except metadata.PackageNotFoundError:
+            continue
+    return "membrane (not installed)"
 
 
 class RequestError(Exception):
@@ -84,6 +95,8 @@ class ServedScene:
         )
         self.shape = scene.lattice.shape
         self._description = self._describe()
+        # Encoded once: a 65,536-point lattice's describe is a megabyte of coordinates.
+        self.encoded_description = encode_fields(self._description)
 
     @classmethod
     def load(cls, scene: Scene | str | Path, threads: int = 1) -> ServedScene:
@@ -186,7 +199,7 @@ class Dispatcher:
             names = [served.name for served in scenes]
             raise ValueError(f"scene names must be distinct, got {names}")
         self._stats_snapshot = stats_snapshot or dict
-        self._ops: dict[str, Callable[[dict[str, Any]], dict[str, Any]]] = {
+        self._ops: dict[str, Callable[[dict[str, Any]], dict[str, Any] | EncodedFields]] = {
             Op.HELLO: self._hello,
             Op.DESCRIBE: self._describe,
             Op.QUERY: self._query,
@@ -200,51 +213,59 @@ class Dispatcher:
         return next(iter(self.scenes)) if len(self.scenes) == 1 else None
 
     def handle(self, body: Sequence[bytes]) -> Answer:
-        """Answer one request given as its payload frames (exactly one is valid). Never raises."""
+        """Answer one request given as its payload frames (exactly one is valid). Never raises.
+
+        Nothing from a request is recorded (session, op) unless its envelope is valid, and no
+        value a client sent is formatted whole into a reply or a log line (``preview``).
+        """
         if len(body) != 1:
             reason = f"expected one payload frame, got {len(body)}"
             return self._error(None, ErrorCode.BAD_MESSAGE, reason)
         try:
-            message = decode(body[0])
+            message = decode(body[0], MAX_REQUEST_BYTES)
         except ProtocolError as exc:
             return self._error(None, ErrorCode.BAD_MESSAGE, str(exc))
         request_id = _request_id(message)
-        session = message.get("session")
-        session = session if isinstance(session, str) else None
         op = message.get("op")
         op_name = op if isinstance(op, str) and op in self._ops else None
+        session: str | None = None
         try:
-            self._check_envelope(message, request_id)
+            session = self._check_envelope(message, request_id)
             fields = self._ops[message["op"]](message)
+            if isinstance(fields, EncodedFields):
+                return Answer(encode_ok_reply(request_id, fields), op_name, None, None, session)
+            reply = encode(ok_reply(request_id, **fields))
         except RequestError as exc:
             return self._error(request_id, exc.code, str(exc), op_name, session)
         except Exception as exc:  # a bug must cost one reply, never the server
-            logger.exception("internal error answering %r", message.get("op"))
+            logger.exception("internal error answering op %s", op_name or "(invalid)")
             message_text = f"the server failed answering this request: {type(exc).__name__}"
             return self._error(request_id, ErrorCode.INTERNAL_ERROR, message_text, op_name, session)
         scene = fields.get("scene") if op_name == Op.QUERY else None
-        return Answer(encode(ok_reply(request_id, **fields)), op_name, None, scene, session)
+        return Answer(reply, op_name, None, scene, session)
 
     # -- envelope ----------------------------------------------------------------------------
 
-    def _check_envelope(self, message: dict[str, Any], request_id: int | None) -> None:
+    def _check_envelope(self, message: dict[str, Any], request_id: int | None) -> str | None:
+        """Raise RequestError unless the envelope is valid; return its session (or None)."""
         if request_id is None:
             raise RequestError(
                 ErrorCode.BAD_REQUEST,
-                f"'id' must be an int in [0, 2^63), got {message.get('id')!r}",
+                f"'id' must be an int in [0, 2^63), got {preview(message.get('id'))}",
             )
-        if message.get("v") != PROTOCOL_VERSION or isinstance(message.get("v"), bool):
+        version = message.get("v")
+        if type(version) is not int or version != PROTOCOL_VERSION:  # 1.0 and True are not 1
             raise RequestError(
                 ErrorCode.BAD_VERSION,
-                f"protocol version {message.get('v')!r} unsupported; this server speaks "
-                f"version {PROTOCOL_VERSION}",
+                f"protocol version {preview(version)} unsupported; this server speaks "
+                f"version {PROTOCOL_VERSION} (an int)",
             )
         op = message.get("op")
         if not isinstance(op, str):
-            raise RequestError(ErrorCode.BAD_REQUEST, f"'op' must be a string, got {op!r}")
+            raise RequestError(ErrorCode.BAD_REQUEST, f"'op' must be a string, got {preview(op)}")
         if op not in self._ops:
             known = ", ".join(self._ops)
-            raise RequestError(ErrorCode.UNKNOWN_OP, f"unknown op {op[:64]!r}; ops: {known}")
+            raise RequestError(ErrorCode.UNKNOWN_OP, f"unknown op {preview(op)}; ops: {known}")
         session = message.get("session")
         if session is not None and (
             not isinstance(session, str) or len(session) > MAX_SESSION_CHARS
@@ -253,6 +274,7 @@ class Dispatcher:
                 ErrorCode.BAD_REQUEST,
                 f"'session' must be a string of at most {MAX_SESSION_CHARS} characters",
             )
+        return session
 
     def _scene(self, message: dict[str, Any]) -> ServedScene:
         name = message.get("scene")
@@ -265,12 +287,14 @@ class Dispatcher:
                 )
             name = self.default_scene
         if not isinstance(name, str):
-            raise RequestError(ErrorCode.BAD_REQUEST, f"'scene' must be a string, got {name!r}")
+            raise RequestError(
+                ErrorCode.BAD_REQUEST, f"'scene' must be a string, got {preview(name)}"
+            )
         served = self.scenes.get(name)
         if served is None:
             hosted = ", ".join(self.scenes)
             raise RequestError(
-                ErrorCode.UNKNOWN_SCENE, f"no scene {name[:64]!r} here; scenes: {hosted}"
+                ErrorCode.UNKNOWN_SCENE, f"no scene {preview(name)} here; scenes: {hosted}"
             )
         return served
 
@@ -301,8 +325,8 @@ class Dispatcher:
             },
         }
 
-    def _describe(self, message: dict[str, Any]) -> dict[str, Any]:
-        return self._scene(message).describe()
+    def _describe(self, message: dict[str, Any]) -> EncodedFields:
+        return self._scene(message).encoded_description
 
     def _query(self, message: dict[str, Any]) -> dict[str, Any]:
         served = self._scene(message)
@@ -310,7 +334,7 @@ class Dispatcher:
         dtype = message.get("dtype", "<f4")
         if dtype not in ARRAY_DTYPES:
             allowed = list(ARRAY_DTYPES)
-            reason = f"'dtype' must be one of {allowed}, got {dtype!r:.64}"
+            reason = f"'dtype' must be one of {allowed}, got {preview(dtype)}"
             raise RequestError(ErrorCode.BAD_REQUEST, reason)
         try:
             return served.query(t, dtype)
@@ -336,7 +360,7 @@ def _time(message: dict[str, Any]) -> float:
         raise RequestError(ErrorCode.BAD_REQUEST, "query needs 't' (seconds, a float)")
     value = message["t"]
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise RequestError(ErrorCode.BAD_REQUEST, f"'t' must be a number, got {value!r:.64}")
+        raise RequestError(ErrorCode.BAD_REQUEST, f"'t' must be a number, got {preview(value)}")
     t = float(value)
     if not math.isfinite(t):
         raise RequestError(ErrorCode.INVALID_TIME, f"'t' must be finite, got {t}")

@@ -1,8 +1,12 @@
 """The ZeroMQ loop: a ROUTER socket answering every request, one at a time, in one thread.
 
 No client can stall the others: the loop never waits on a client (replies are sent without
-blocking; ZeroMQ drops a reply to a peer that is gone or not reading), every request is answered
-in bounded time, and malformed input costs one error reply.
+blocking; a reply to a peer that is gone or not reading is dropped and counted), every request is
+answered in bounded time, and malformed input costs one error reply. Nothing one request does
+can end the loop: an exception from handling it is logged, counted and answered.
+
+Memory per peer is bounded in bytes, not messages: the send queue's high-water mark is the
+per-peer budget divided by the largest reply a hosted scene can send (docs/ROBUSTNESS.md).
 
 Shutdown has one path: ``request_stop()`` (what SIGTERM/SIGINT call, from a signal handler or
 any thread) sets a flag; the loop finishes the reply in flight, closes its socket and returns.
@@ -11,7 +15,9 @@ any thread) sets a flag; the loop finishes the reply in flight, closes its socke
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import resource
 import signal
 import threading
 import time
@@ -21,12 +27,19 @@ from types import FrameType, TracebackType
 
 import zmq
 
-from membrane_client.protocol import MAX_REQUEST_BYTES
-from membrane_server.dispatch import Dispatcher, ServedScene
+from membrane_client.protocol import MAX_REQUEST_BYTES, ErrorCode, encode, error_reply
+from membrane_server.dispatch import Answer, Dispatcher, ServedScene
 from membrane_server.scene import Scene, load_scene
 from membrane_server.stats import Stats
 
-__all__ = ["DEFAULT_BIND", "SHUTDOWN_LINGER_MS", "Server"]
+__all__ = [
+    "DEFAULT_BIND",
+    "DEFAULT_PEER_BUDGET",
+    "SHUTDOWN_LINGER_MS",
+    "Server",
+    "raise_open_file_limit",
+    "send_queue_limit",
+]
 
 DEFAULT_BIND = "tcp://127.0.0.1:5555"
 
@@ -38,6 +51,15 @@ _POLL_MS = 50
 # slow reader needs many TCP round trips); bounded, so a stuck peer cannot hold the stop.
 SHUTDOWN_LINGER_MS = 1000
 _START_TIMEOUT_S = 10.0
+# Bytes of replies ZeroMQ may hold for one peer that does not read (its send high-water mark is
+# derived from this); a peer past it has further replies dropped, never queued.
+DEFAULT_PEER_BUDGET = 2 * 1024 * 1024
+# Never fewer queued replies than this per peer, whatever the budget: a client may pipeline.
+_MIN_QUEUED_REPLIES = 2
+# Requests queued per peer before ZeroMQ stops reading its connection (back-pressure, not loss).
+_MAX_QUEUED_REQUESTS = 64
+# Bytes a reply needs beyond its arrays: the envelope and the scene's other fields.
+_REPLY_OVERHEAD = 4096
 
 
 class Server:
@@ -51,6 +73,7 @@ class Server:
         context: ZeroMQ context (default: the process-wide shared one).
         socket_options: Extra socket options (option -> value) for the ROUTER socket, set
             before binding (e.g. CurveZMQ keys).
+        peer_budget: Bytes of unread replies kept for one peer (see ``send_queue_limit``).
 
     Raises:
         SceneError, ManifestError: A scene cannot be served (message names the cause).
@@ -64,7 +87,10 @@ class Server:
         threads: int = 1,
         context: zmq.Context[zmq.Socket[bytes]] | None = None,
         socket_options: Mapping[int, int | bytes] | None = None,
+        peer_budget: int = DEFAULT_PEER_BUDGET,
     ) -> None:
+        if peer_budget < 1:
+            raise ValueError(f"peer_budget must be a positive number of bytes, got {peer_budget}")
         # Scene files first (cheap), so a name clash is reported before any model is loaded.
         self._sources = list(scenes)  # kept so that a reload re-reads names and files
         self._threads = threads
@@ -73,6 +99,7 @@ class Server:
         self.bind = bind
         self._context = context or zmq.Context.instance()
         self._socket_options = dict(socket_options or {})
+        self.peer_budget = peer_budget
         self._address: str | None = None
         self._stop = threading.Event()
         self._reload = threading.Event()
@@ -220,13 +247,21 @@ class Server:
             self._loop(socket)
         finally:
             socket.close(linger=SHUTDOWN_LINGER_MS)  # the reply in flight still goes out
-            requests = self.stats.requests
-            logger.info("server on %s stopped after %d requests", self._address, requests)
+            requests, dropped = self.stats.requests, sum(self.stats.dropped.values())
+            logger.info("server on %s stopped after %d requests (%d replies dropped)",
+                        self._address, requests, dropped)  # fmt: skip
 
     def _bind_socket(self) -> zmq.Socket[bytes]:
         socket: zmq.Socket[bytes] = self._context.socket(zmq.ROUTER)
         socket.setsockopt(zmq.LINGER, 0)
         socket.setsockopt(zmq.MAXMSGSIZE, MAX_REQUEST_BYTES)
+        # A full queue or a vanished peer raises on send (counted) instead of a silent drop.
+        socket.setsockopt(zmq.ROUTER_MANDATORY, 1)
+        queued = send_queue_limit(self.peer_budget, self._largest_reply_bytes())
+        socket.setsockopt(zmq.SNDHWM, queued)
+        socket.setsockopt(zmq.RCVHWM, _MAX_QUEUED_REQUESTS)
+        logger.info("per peer: at most %d unread replies (budget %d bytes)",
+                    queued, self.peer_budget)  # fmt: skip
         for option, value in self._socket_options.items():
             socket.setsockopt(option, value)
         try:
@@ -238,6 +273,14 @@ class Server:
         self._address = endpoint.decode() if isinstance(endpoint, bytes) else str(endpoint)
         logger.info("serving %s on %s", ", ".join(self.scene_names), self._address)
         return socket
+
+    def _largest_reply_bytes(self) -> int:
+        """The largest reply any hosted scene sends: its describe, or a float64 frame."""
+        largest = 0
+        for served in self.dispatcher.scenes.values():
+            frame = served.evaluator.n_points * 8
+            largest = max(largest, len(served.encoded_description.data), frame)
+        return largest + _REPLY_OVERHEAD
 
     def _loop(self, socket: zmq.Socket[bytes]) -> None:
         poller = zmq.Poller()
@@ -253,23 +296,65 @@ class Server:
                     frames = socket.recv_multipart(zmq.NOBLOCK)
                 except zmq.Again:
                     break
-                self._answer(socket, frames, time.perf_counter())
+                try:
+                    self._answer(socket, frames, time.perf_counter())
+                except Exception:  # one request must never end the loop
+                    self.stats.failures += 1
+                    _log_failure()
 
     def _answer(self, socket: zmq.Socket[bytes], frames: list[bytes], received: float) -> None:
         # ROUTER frames: [peer identity, (empty delimiter from REQ/DEALER-as-REQ), payload...].
         envelope, body = frames[:1], frames[1:]
         if body and body[0] == b"":
             envelope, body = frames[:2], frames[2:]
-        answer = self.dispatcher.handle(body)
+        try:
+            answer = self.dispatcher.handle(body)
+        except Exception:  # handle() never raises by contract; if it does, one reply is lost
+            self.stats.failures += 1
+            _log_failure()
+            reply = encode(error_reply(None, ErrorCode.INTERNAL_ERROR, "the server failed"))
+            answer = Answer(reply, None, str(ErrorCode.INTERNAL_ERROR))
         try:
             socket.send_multipart([*envelope, answer.reply], zmq.NOBLOCK)
-        except zmq.Again:  # the peer is not reading: drop its reply, never wait for it
-            logger.debug("reply dropped: peer not ready")
+        except zmq.Again:  # the peer's queue is at its budget: drop, never wait for it
+            self.stats.record_dropped("peer_not_reading")
         except zmq.ZMQError as exc:
-            logger.warning("reply not sent: %s", exc)
+            reason = "peer_gone" if exc.errno == zmq.EHOSTUNREACH else "send_failed"
+            self.stats.record_dropped(reason)
         self.stats.record(
             time.perf_counter() - received, answer.op, answer.error, answer.scene, answer.session
         )
+
+
+def _log_failure() -> None:
+    """Log the exception being handled; even a failing log handler (a RecursionError is re-raised
+    by logging's own handlers) must not end the loop."""
+    with contextlib.suppress(Exception):
+        logger.exception("answering one request failed; serving on")
+
+
+def send_queue_limit(peer_budget: int, largest_reply: int) -> int:
+    """The send high-water mark (in messages) that keeps one peer's unread replies within
+    ``peer_budget`` bytes when every reply is as large as ``largest_reply``."""
+    return max(_MIN_QUEUED_REPLIES, peer_budget // max(largest_reply, 1))
+
+
+def raise_open_file_limit() -> tuple[int, int]:
+    """Raise this process's soft limit on open files to its hard limit; returns (before, after).
+
+    Each connected peer costs ZeroMQ a file descriptor; at the soft limit (often 1,024) new
+    clients cannot connect at all. The hard limit is the operator's (systemd ``LimitNOFILE``).
+    """
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    target = hard if hard != resource.RLIM_INFINITY else max(soft, 1 << 20)
+    if soft == resource.RLIM_INFINITY or soft >= target:
+        return soft, soft
+    try:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (target, hard))
+    except (ValueError, OSError) as exc:
+        logger.warning("cannot raise the open-file limit from %d to %d: %s", soft, target, exc)
+        return soft, soft
+    return soft, target
 
 
 def _load_scenes(

@@ -1,11 +1,14 @@
 """Server-side counters and latency percentiles (the ``stats`` op).
 
 Latency is measured from receiving a request to handing its reply to ZeroMQ, kept for the last
-``window`` requests in a ring buffer; percentiles are computed only when asked for.
+``window`` requests in a ring buffer. Percentiles are computed when asked for, at most once per
+``percentile_interval`` seconds: a flood of ``stats`` requests must not cost a sort of the whole
+window each (about a millisecond), which would delay everyone else's replies.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter, OrderedDict
 from typing import Any
@@ -21,9 +24,12 @@ class Stats:
     Args:
         window: How many of the latest latencies the percentiles cover.
         max_sessions: How many session ids are remembered (least recently seen are forgotten).
+        percentile_interval: Seconds a computed set of percentiles is reused for.
     """
 
-    def __init__(self, window: int = 100_000, max_sessions: int = 10_000) -> None:
+    def __init__(
+        self, window: int = 100_000, max_sessions: int = 10_000, percentile_interval: float = 1.0
+    ) -> None:
         self.started = time.monotonic()
         self.requests = 0
         self.ops: Counter[str] = Counter()
@@ -33,6 +39,14 @@ class Stats:
         self._max_sessions = max_sessions
         self._latencies = np.zeros(window, dtype=np.float64)
         self._latency_count = 0
+        self._percentile_interval = percentile_interval
+        self._percentiles: dict[str, float | int] | None = None
+        self._percentiles_at = -math.inf
+        # Replies ZeroMQ would not take, by reason ("peer_not_reading": its queue is full;
+        # "peer_gone": it disconnected before its reply was ready).
+        self.dropped: Counter[str] = Counter()
+        # Requests whose handling raised out of the dispatcher (a bug; each is logged).
+        self.failures = 0
 
     def record(
         self,
@@ -58,13 +72,29 @@ class Stats:
             if len(self._sessions) > self._max_sessions:
                 self._sessions.popitem(last=False)
 
+    def record_dropped(self, reason: str) -> None:
+        """Account for a reply that could not be handed to ZeroMQ."""
+        self.dropped[reason] += 1
+
     @property
     def sessions(self) -> int:
         """Distinct session ids remembered."""
         return len(self._sessions)
 
     def latency_us(self) -> dict[str, float | int]:
-        """Percentiles of the latency window, in microseconds."""
+        """Percentiles of the latency window, in microseconds, computed now."""
+        return self._compute_percentiles()
+
+    def recent_latency_us(self) -> dict[str, float | int]:
+        """``latency_us()`` computed at most once per ``percentile_interval`` (what the ``stats``
+        op answers; ``age_s`` says how old the figures are)."""
+        now = time.monotonic()
+        if self._percentiles is None or now - self._percentiles_at >= self._percentile_interval:
+            self._percentiles = self._compute_percentiles()
+            self._percentiles_at = now
+        return {**self._percentiles, "age_s": now - self._percentiles_at}
+
+    def _compute_percentiles(self) -> dict[str, float | int]:
         count = min(self._latency_count, self._latencies.size)
         if count == 0:
             return {"count": 0, "window": int(self._latencies.size)}
@@ -90,5 +120,7 @@ class Stats:
             "ops": dict(self.ops),
             "scenes": dict(self.scenes),
             "sessions": self.sessions,
-            "latency_us": self.latency_us(),
+            "latency_us": self.recent_latency_us(),
+            "dropped_replies": dict(self.dropped),
+            "failures": self.failures,
         }

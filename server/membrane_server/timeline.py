@@ -14,6 +14,10 @@ from membrane_client.protocol import Domain
 
 __all__ = ["OutOfDomain", "Sample", "Timeline"]
 
+_EPS = 2.0**-52
+# How many float64 epsilons (relative to the magnitudes involved) count as "on a step".
+_SNAP_EPSILONS = 8
+
 
 class OutOfDomain(ValueError):
     """A time outside the scene's domain under the ``error`` policy."""
@@ -69,6 +73,7 @@ class Timeline:
         position = (t - self.start_offset) / self.dt  # in steps, float64
         if not math.isfinite(position):  # |t| near the float64 limit: overflows to +-inf steps
             return self._outside(t, before=position < 0.0)
+        position = self._snap_to_step(position, t)
         if self.snapping == "nearest":
             step = math.floor(position + 0.5)  # round half up: one rule for every tie
             if 0 <= step <= self.last_step:
@@ -78,6 +83,18 @@ class Timeline:
             weight = position - step if step < self.last_step else 0.0
             return Sample(step, t, weight, Domain.INSIDE)
         return self._outside(t, before=position < 0.0)
+
+    def _snap_to_step(self, position: float, t: float) -> float:
+        """``position`` made a whole step when it is within rounding of one.
+
+        A step's time as a client computes it, start_offset + k * dt, carries a rounding, and so
+        do the subtraction and the division above: the scene's own last step time may come out
+        a few ulps past N (or before k), which must not make it out of the domain.
+        """
+        nearest = round(position)
+        scale = (abs(t) + abs(self.start_offset)) / self.dt + abs(position)
+        on_step = abs(position - nearest) <= _SNAP_EPSILONS * _EPS * scale
+        return float(nearest) if on_step else position
 
     def _outside(self, t: float, before: bool) -> Sample:
         if self.policy == "error":

@@ -1,0 +1,356 @@
+"""Attacks from outside: requests meant to kill the server or grow its memory without bound.
+
+Each test runs `membrane serve` in its own process (its RSS sampled, a watchdog at 1.5 GiB), a
+good client polling a scene meanwhile and checking every frame byte for byte, then asserts: the
+server is alive, its memory grew by less than a stated bound, the good client saw no failure,
+and the log holds no traceback. docs/ROBUSTNESS.md ("Attacks") lists the measured figures.
+Loopback only; every loop is bounded.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import resource
+import signal
+import socket
+import stat
+import textwrap
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import msgpack
+import pytest
+import zmq
+from attackers import GoodClient, MiB, WatchedServer, silent_dealers
+
+from membrane_client import Client
+from membrane_client.curve import create_keypair, load_keypair
+from membrane_client.protocol import decode, encode, request
+from membrane_models.manifest import Manifest, ManifestError
+from membrane_models.zoo_index import resolve_model
+from membrane_server.scene import MAX_STEPS, SceneError, scene_from_dict
+from membrane_server.source import resolve_source
+from membrane_server.stats import Stats
+
+GOOD_SCENE = "rope"  # the good client's: 100 points, exact, 101 steps
+REPLY_TIMEOUT_MS = 5000
+
+
+@pytest.fixture
+def watched() -> Iterator[list[WatchedServer]]:
+    """Servers a test starts; killed at teardown."""
+    started: list[WatchedServer] = []
+    yield started
+    for server in started:
+        server.close()
+
+
+def _dealer(address: str) -> zmq.Socket[bytes]:
+    dealer: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.DEALER)
+    dealer.setsockopt(zmq.LINGER, 0)
+    dealer.setsockopt(zmq.RCVTIMEO, REPLY_TIMEOUT_MS)
+    dealer.connect(address)
+    return dealer
+
+
+def _exchange(dealer: zmq.Socket[bytes], payload: bytes) -> dict[str, object]:
+    dealer.send_multipart([b"", payload])
+    return decode(dealer.recv_multipart()[-1])
+
+
+def _survived(server: WatchedServer, good: GoodClient, bound: int) -> None:
+    """The checks every attack ends with: alive, memory within ``bound``, a good query
+    answered after the attack, no failure seen by the good client, no traceback logged."""
+    assert not server.killed_for_memory, f"RSS passed the watchdog: {server.peak / MiB:.0f} MiB"
+    assert server.alive, server.log[-20:]
+    with Client(server.address, timeout=5.0, scene=GOOD_SCENE) as client:
+        assert client.query(0.5).step == 50
+    good.stop()
+    assert good.answered > 0
+    assert good.failures == [], good.failures[:5]
+    assert server.growth() < bound, f"RSS grew {server.growth() / MiB:.1f} MiB"
+    assert server.tracebacks() == [], server.log[-40:]
+
+
+# -- 1. one small request that killed the server ------------------------------------------------
+
+
+def _nested_request(field_name: str, depth: int) -> bytes:
+    """{"v": 1, "id": 1, "op": "query", "scene": "rope", "t": 0.5} with one field replaced by
+    ``depth`` nested one-element arrays (written byte by byte: msgpack's packer stops at 511)."""
+    fields: dict[str, object] = {"v": 1, "id": 1, "op": "query", "scene": GOOD_SCENE, "t": 0.5}
+    fields[field_name] = None
+    data = msgpack.Packer().pack_map_header(len(fields))
+    for key, value in fields.items():
+        data += msgpack.packb(key)
+        data += b"\x91" * depth + b"\x00" if key == field_name else msgpack.packb(value)
+    return data
+
+
+def test_deep_nesting_in_any_field_costs_one_error_reply_never_the_server(
+    watched: list[WatchedServer],
+) -> None:
+    """~1 KB of nested arrays in 'op' killed the server (RecursionError formatting the error
+    message, re-raised by the logging handler, out of the serve loop). Now every depth in every
+    envelope field gets a bad_message/bad_request/bad_version reply, logged without traceback."""
+    server = WatchedServer([GOOD_SCENE])
+    watched.append(server)
+    good = GoodClient(server.address, GOOD_SCENE).start()
+    dealer = _dealer(server.address)
+    codes: set[str] = set()
+    try:
+        for field_name in ("op", "id", "v", "t", "scene", "dtype", "session"):
+            for depth in (2, 31, 33, 500, 960, 1000, 1023, 1024, 1100):
+                reply = _exchange(dealer, _nested_request(field_name, depth))
+                error = reply["error"]
+                assert isinstance(error, dict)
+                assert reply["ok"] is False and error["code"] != "internal_error", reply
+                assert len(str(error["message"])) < 300
+                codes.add(str(error["code"]))
+    finally:
+        dealer.close()
+    assert codes <= {"bad_message", "bad_request", "bad_version"}
+    _survived(server, good, bound=32 * MiB)
+
+
+def test_version_one_must_be_the_integer_one(membrane_server_address: str) -> None:
+    dealer = _dealer(membrane_server_address)
+    try:
+        for version in (1.0, True, "1"):
+            reply = _exchange(dealer, encode({"v": version, "id": 3, "op": "ping"}))
+            assert reply["error"] == {
+                "code": "bad_version",
+                "message": reply["error"]["message"],  # type: ignore[index]
+            }
+        assert _exchange(dealer, encode(request("ping", 4)))["ok"] is True
+    finally:
+        dealer.close()
+
+
+@pytest.fixture(scope="module")
+def membrane_server_address() -> Iterator[str]:
+    from membrane_server.server import Server
+
+    with Server([GOOD_SCENE], bind="tcp://127.0.0.1:*") as server:
+        yield server.address
+
+
+# -- 3. slow readers --------------------------------------------------------------------------
+
+
+def _big_scene(tmp_path: Path) -> Path:
+    """A legal 65,536-point scene: a describe reply is 0.5 MiB of coordinates."""
+    scene = tmp_path / "long-rope.toml"
+    scene.write_text(
+        textwrap.dedent(
+            """
+            model = "string-forced"
+            evaluator = "exact"
+            dt = 0.1
+            duration = 1.0
+            [lattice]
+            nx = 65536
+            """
+        )
+    )
+    return scene
+
+
+def test_peers_that_never_read_are_held_to_their_budget(
+    watched: list[WatchedServer], tmp_path: Path
+) -> None:
+    """10 connections sending 100 describes each (0.5 MiB replies) and never reading pushed the
+    server past 4 GiB (1,000 replies queued per peer). Now a peer's unread replies are held to
+    its byte budget (2 MiB by default), the rest dropped and counted."""
+    scene = _big_scene(tmp_path)
+    server = WatchedServer([GOOD_SCENE, str(scene)])
+    watched.append(server)
+    good = GoodClient(server.address, GOOD_SCENE).start()
+    peers = silent_dealers(server.address, 10)
+    try:
+        describe = encode(request("describe", 1, scene="long-rope"))
+        for _ in range(100):
+            for peer in peers:
+                peer.send_multipart([b"", describe])
+        time.sleep(3.0)  # the server answers all 1,000 (a few ms each)
+        with Client(server.address, timeout=5.0, scene=GOOD_SCENE) as client:
+            dropped = client.stats()["dropped_replies"]
+        assert dropped.get("peer_not_reading", 0) > 0
+    finally:
+        for peer in peers:
+            peer.close()
+    # 10 peers x 2 MiB, plus one describe being encoded and the allocator's slack.
+    _survived(server, good, bound=10 * 2 * MiB + 40 * MiB)
+
+
+# -- 4. a scene whose step count does not fit -----------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("dt", "duration"), [(5e-324, 1.0), (1e-19, 1.8446744073709552), (2.0**-53, 1.0)]
+)
+def test_a_step_count_past_the_limit_is_refused_at_load(dt: float, duration: float) -> None:
+    fields = {"name": "s", "model": "string-forced", "evaluator": "exact",
+              "lattice": {"nx": 3}, "dt": dt, "duration": duration}  # fmt: skip
+    with pytest.raises(SceneError, match=f"more than the limit {MAX_STEPS}"):
+        scene_from_dict(fields)
+
+
+def test_a_reload_to_an_unservable_scene_keeps_the_server_serving(
+    watched: list[WatchedServer], tmp_path: Path
+) -> None:
+    """A SIGHUP reload to a scene of 2^64 steps killed the daemon (its describe overflowed
+    msgpack). Now the reload is refused and the previous scenes go on serving."""
+    scene = tmp_path / "rope.toml"
+    valid = 'model = "string-forced"\nevaluator = "exact"\ndt = 0.01\nduration = 1.0\n'
+    scene.write_text(valid + "[lattice]\nnx = 100\n")
+    server = WatchedServer([str(scene)])
+    watched.append(server)
+    good = GoodClient(server.address, str(scene)).start()
+    for dt, duration in ((5e-324, 1.0), (1e-19, 1.8446744073709552)):
+        scene.write_text(
+            f'model = "string-forced"\nevaluator = "exact"\ndt = {dt!r}\n'
+            f"duration = {duration!r}\n[lattice]\nnx = 100\n"
+        )
+        server.process.send_signal(signal.SIGHUP)
+        deadline = time.monotonic() + 10
+        while not any("reload failed" in line for line in server.log[-5:]):
+            assert time.monotonic() < deadline, server.log[-10:]
+            time.sleep(0.05)
+        server.log.clear()
+    with Client(server.address, timeout=5.0) as client:
+        assert client.describe(refresh=True).steps == 101
+    _survived(server, good, bound=32 * MiB)
+
+
+# -- 5. refused session ids ------------------------------------------------------------------------
+
+
+def test_refused_session_ids_are_not_recorded(watched: list[WatchedServer]) -> None:
+    """12,000 pings with 65,000-character sessions added 630 MB that stayed: the refused ids
+    were recorded. Now nothing from a request that fails validation is kept."""
+    server = WatchedServer([GOOD_SCENE])
+    watched.append(server)
+    good = GoodClient(server.address, GOOD_SCENE).start()
+    dealer = _dealer(server.address)
+    try:
+        for k in range(1500):
+            session = f"{k:08d}" + "s" * 65_000
+            reply = _exchange(dealer, encode(request("ping", k, session=session)))
+            assert reply["error"]["code"] == "bad_request"  # type: ignore[index]
+        with Client(server.address, timeout=5.0) as client:
+            assert client.stats()["sessions"] <= 2  # the good client's and this one's
+    finally:
+        dealer.close()
+    # 1,500 x 65 KB = 98 MB would stay if the ids were kept.
+    _survived(server, good, bound=32 * MiB)
+
+
+# -- 8. the smaller ones -------------------------------------------------------------------------
+
+
+def test_step_times_that_collapse_in_float64_are_refused() -> None:
+    """start_offset 1e15 s with dt 0.01: consecutive step times are 0.125 s apart as float64
+    numbers, so steps would merge without a word."""
+    fields = {"name": "s", "model": "string-forced", "evaluator": "exact",
+              "lattice": {"nx": 3}, "dt": 0.01, "duration": 1.0}  # fmt: skip
+    with pytest.raises(SceneError, match="start_offset: step times near 1e\\+15 s"):
+        scene_from_dict({**fields, "start_offset": 1e15})
+    assert scene_from_dict({**fields, "start_offset": 1e8}).start_offset == 1e8
+
+
+def test_key_pairs_are_made_owner_only_and_exposed_secrets_are_warned_about(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    public, secret = create_keypair(tmp_path / "keys", "server")
+    assert stat.S_IMODE(secret.stat().st_mode) == 0o600
+    assert stat.S_IMODE(public.stat().st_mode) == 0o644
+    with caplog.at_level(logging.WARNING):
+        load_keypair(secret, "server")
+    assert caplog.records == []
+    secret.chmod(0o644)  # as zmq.auth.create_certificates leaves it under a 022 umask
+    with caplog.at_level(logging.WARNING):
+        load_keypair(secret, "server")
+    assert "secret key readable by others (mode 0o644)" in caplog.text
+
+
+def _low_file_limit() -> None:  # runs in the server's child process, before exec
+    _, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (128, hard))
+
+
+def test_idle_connections_past_a_low_file_limit_do_not_lock_clients_out(
+    watched: list[WatchedServer],
+) -> None:
+    """With a soft limit of 1,024 open files, 1,100 idle peers locked new clients out. The
+    server raises its soft limit to the hard one at start: here from 128, with 200 idle peers."""
+    _, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard != resource.RLIM_INFINITY and hard < 512:
+        pytest.skip(f"the hard open-file limit here is {hard}: too low to show the raise")
+    server = WatchedServer([GOOD_SCENE], preexec=_low_file_limit)
+    watched.append(server)
+    assert any("open-file limit raised from 128" in line for line in server.log)
+    host, port = server.address.removeprefix("tcp://").rsplit(":", 1)
+    idle = [socket.create_connection((host, int(port)), timeout=5.0) for _ in range(200)]
+    try:
+        good = GoodClient(server.address, GOOD_SCENE).start()
+        time.sleep(1.0)
+        _survived(server, good, bound=64 * MiB)
+    finally:
+        for connection in idle:
+            connection.close()
+
+
+def test_a_flood_of_stats_and_hello_costs_little(watched: list[WatchedServer]) -> None:
+    """`stats` recomputed percentiles over 100,000 latencies on every call and `hello` read the
+    package metadata: a flood of either delayed a good client's queries past 50 ms."""
+    server = WatchedServer([GOOD_SCENE])
+    watched.append(server)
+    good = GoodClient(server.address, GOOD_SCENE, timeout=2.0).start()
+    dealer = _dealer(server.address)
+    try:
+        for k in range(1000):
+            dealer.send_multipart([b"", encode(request("stats" if k % 2 else "hello", k))])
+        for _ in range(1000):
+            assert decode(dealer.recv_multipart()[-1])["ok"] is True
+    finally:
+        dealer.close()
+    _survived(server, good, bound=32 * MiB)
+
+
+def test_stats_percentiles_are_recomputed_at_most_once_per_interval() -> None:
+    stats = Stats(window=1000, percentile_interval=3600.0)
+    computed = 0
+    compute = stats._compute_percentiles
+
+    def counting() -> dict[str, float | int]:
+        nonlocal computed
+        computed += 1
+        return compute()
+
+    stats._compute_percentiles = counting  # type: ignore[method-assign]
+    for k in range(500):
+        stats.record(1e-4 * (k + 1), "query")
+        stats.snapshot()
+    assert computed == 1
+    assert stats.snapshot()["latency_us"]["count"] == 1  # as of its first computation
+    assert stats.latency_us()["count"] == 500  # computed now, for benchmarks
+
+
+def test_model_paths_cannot_leave_their_folders(tmp_path: Path) -> None:
+    """`model = "../.."` or a manifest graph path with '..' loaded files from elsewhere."""
+    fields = {"name": "s", "model": "../..", "evaluator": "table",
+              "lattice": {"nx": 3}, "dt": 0.1, "duration": 1.0}  # fmt: skip
+    with pytest.raises(SceneError, match=r"has no '/' or '\.\.'"):
+        resolve_source(scene_from_dict(fields))
+    manifest = resolve_model("string-forced")
+    data = manifest.to_dict()
+    data["graphs"]["full"]["file"] = "../../../etc/passwd"
+    target = tmp_path / "string-forced.json"
+    target.write_text(json.dumps(data))
+    with pytest.raises(ManifestError, match="must be a file name in the manifest's own folder"):
+        Manifest.read(target).verify("full")
+    assert os.path.exists(manifest.verify("full"))
