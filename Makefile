@@ -5,17 +5,21 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint clean
+.PHONY: demo test lint wheel clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 
+# The distribution was called `membrane` before `membrane-tissue`: an old editable install of it
+# would register every command twice, so it goes first (a no-op when absent).
 $(VENV)/.server-installed: pyproject.toml | $(BIN)/python
+	$(BIN)/pip uninstall -q -y membrane
 	$(BIN)/pip install -q -e '.[server,plot]'
 	touch $@
 
 $(VENV)/.dev-installed: pyproject.toml | $(BIN)/python
+	$(BIN)/pip uninstall -q -y membrane
 	$(BIN)/pip install -q -e '.[dev]'
 	touch $@
 
@@ -32,5 +36,10 @@ lint: $(VENV)/.dev-installed
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
+# The wheel a simulator's Python installs (dist/membrane_tissue-VERSION-py3-none-any.whl): the
+# distribution is not on the public index, where `membrane` is another project's name.
+wheel: | $(BIN)/python
+	$(BIN)/pip wheel . --no-deps -q -w dist
+
 clean:
-	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) dist .pytest_cache .mypy_cache .ruff_cache

@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         plot(info, frames, args.plot)
         print(f"plot: {args.plot}")
     except ModuleNotFoundError:
-        print("plot: skipped (pip install 'membrane[plot]')")
+        print("plot: skipped (pip install 'membrane-tissue[plot]')")
     print(f"server stopped (exit code {code})")
     return 0 if code == 0 else 1
 

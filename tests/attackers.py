@@ -9,8 +9,6 @@ a failed test, never the machine.
 from __future__ import annotations
 
 import queue
-import socket
-import struct
 import subprocess
 import sys
 import threading
@@ -93,6 +91,12 @@ class WatchedServer:
 
     def rss(self) -> int:
         return rss_bytes(self.pid)
+
+    def high_water(self) -> int:
+        """The most resident memory the process ever had (VmHWM), load included, in bytes."""
+        status = Path(f"/proc/{self.pid}/status").read_text()
+        line = next(line for line in status.splitlines() if line.startswith("VmHWM:"))
+        return int(line.split()[1]) * 1024
 
     def reset_peak(self) -> None:
         """Start a new peak from the current RSS."""
@@ -197,32 +201,6 @@ class GoodClient:
 
 
 # -- raw peers ---------------------------------------------------------------------------------
-
-
-def zmtp_null_peer(address: str, socket_type: bytes = b"DEALER") -> socket.socket:
-    """A raw TCP connection that has completed a ZMTP 3.0 NULL handshake (greeting and READY),
-    so that it may send frames of its own making."""
-    host, port = address.removeprefix("tcp://").rsplit(":", 1)
-    peer = socket.create_connection((host, int(port)), timeout=5.0)
-    greeting = b"\xff" + b"\x00" * 8 + b"\x7f" + bytes([3, 0]) + b"NULL".ljust(20, b"\x00")
-    greeting += b"\x00" + b"\x00" * 31
-    peer.sendall(greeting)
-    _read_exactly(peer, 64)  # the server's greeting
-    name = b"Socket-Type"
-    body = b"\x05READY" + bytes([len(name)]) + name + struct.pack(">I", len(socket_type))
-    body += socket_type
-    peer.sendall(bytes([0x04, len(body)]) + body)  # a short command frame
-    return peer
-
-
-def _read_exactly(peer: socket.socket, count: int) -> bytes:
-    data = b""
-    while len(data) < count:
-        chunk = peer.recv(count - len(data))
-        if not chunk:
-            raise ConnectionError("the server closed the connection during the handshake")
-        data += chunk
-    return data
 
 
 def silent_dealers(address: str, count: int) -> list[zmq.Socket[bytes]]:

@@ -270,7 +270,7 @@ def test_without_the_bench_extra_it_names_the_extra(
     code = main(["bench", "--connect", "tcp://127.0.0.1:1"])
     assert code == 2
     err = capsys.readouterr().err.strip()
-    assert "pip install 'membrane[bench]'" in err and len(err.splitlines()) == 1
+    assert "pip install 'membrane-tissue[bench]'" in err and len(err.splitlines()) == 1
 
 
 # ---- against a live server --------------------------------------------------------------------
@@ -370,3 +370,44 @@ def test_baseline_in_alternating_segments_merges_every_part(live_server: str) ->
         assert result.throughput == pytest.approx(result.replies / 0.6)
     assert report.config()["segments"] == 2
     assert "in 2 parts alternating with the echo" in report.table()
+
+
+def _bench_stderr(address: str, on_terminal: bool) -> str:
+    """stderr of a real `membrane bench` run, written to a pipe or to a pseudo-terminal."""
+    import fcntl
+    import os
+    import pty
+    import struct
+    import subprocess
+    import termios
+
+    command = [sys.executable, "-m", "membrane_client.commands", "bench", "--connect", address,
+               "--rate", "100", "--duration", "0.4", "--warmup", "0",
+               "--payload", "ping"]  # fmt: skip
+    if not on_terminal:
+        result = subprocess.run(command, capture_output=True, text=True, timeout=60)
+        assert result.returncode == 0, result.stderr
+        return result.stderr
+    controller, terminal = pty.openpty()
+    # A fresh pseudo-terminal is 0 x 0; tqdm draws nothing that narrow. 24 rows, 80 columns:
+    fcntl.ioctl(terminal, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
+    with subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=terminal) as process:
+        os.close(terminal)
+        chunks = []
+        while True:
+            try:
+                chunk = os.read(controller, 4096)
+            except OSError:  # EIO: the terminal's last writer has exited
+                break
+            if not chunk:
+                break
+            chunks.append(chunk)
+        assert process.wait(timeout=60) == 0
+    os.close(controller)
+    return b"".join(chunks).decode(errors="replace")
+
+
+def test_progress_bar_shows_on_a_terminal_only(live_server: str) -> None:
+    assert "\r" in _bench_stderr(live_server, on_terminal=True)  # the bar, redrawn in place
+    piped = _bench_stderr(live_server, on_terminal=False)
+    assert "\r" not in piped and "replies" not in piped, piped

@@ -197,6 +197,24 @@ def test_run_moves_every_sphere_to_the_served_frame(
     assert set(timings.percentiles()) == {"query", "move", "step", "total"}
 
 
+def test_changing_the_simulators_time_step_is_logged_once(
+    standin: CoppeliaStandin,
+    link: SimulatorLink,
+    membrane_client: Client,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    dt = membrane_client.describe().dt
+    assert standin.scene.dt != dt  # the stand-in starts at CoppeliaSim's default, 0.05 s
+    with caplog.at_level(logging.WARNING), _lattice(link, membrane_client) as lattice:
+        lattice.run(max_steps=1)
+        lattice.run(max_steps=1)  # already at the scene's dt: nothing more to say
+    changes = [r.getMessage() for r in caplog.records if "time step" in r.getMessage()]
+    assert changes == [
+        f"changed the simulator's time step from 0.05 s to {dt:g} s (the scene's dt); "
+        "it stays so after the run"
+    ]
+
+
 def test_without_script_functions_it_falls_back_to_per_sphere(
     membrane_client: Client, caplog: pytest.LogCaptureFixture
 ) -> None:

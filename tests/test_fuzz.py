@@ -219,7 +219,7 @@ def _query_errors(message: dict[str, Any], scenes: dict[str, ServedScene]) -> se
         position = (float(t) - timeline.start_offset) / timeline.dt
         # Within rounding of a step is on it (PROTOCOL.md, "Time"): 8 epsilons of the magnitudes.
         scale = (abs(float(t)) + abs(timeline.start_offset)) / timeline.dt + abs(position)
-        if abs(position - round(position)) <= 8 * 2.0**-52 * scale:
+        if math.isfinite(position) and abs(position - round(position)) <= 8 * 2.0**-52 * scale:
             position = float(round(position))
         if not 0.0 <= position <= timeline.last_step:
             broken.add(ErrorCode.OUT_OF_DOMAIN)

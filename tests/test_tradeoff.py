@@ -51,8 +51,11 @@ def test_full_plan_covers_every_lattice_and_the_series_tolerance(
     }
 
 
-def test_unknown_scene_is_a_usage_error(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["tradeoff", "--scene", "trampoline", "--no-plot"]) == 2
+def test_unknown_scene_is_a_usage_error(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    argv = ["tradeoff", "--scene", "trampoline", "--no-plot", "--out", str(tmp_path / "T.md")]
+    assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert "trampoline" in err and len(err.splitlines()) == 1
 

@@ -128,7 +128,9 @@ def add_bench(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
     parser.add_argument(
         "--csv", type=Path, metavar="FILE", help="append one row per run to this CSV file"
     )
-    parser.add_argument("--quiet", action="store_true", help="no progress display")
+    parser.add_argument(
+        "--quiet", action="store_true", help="no progress display (shown on a terminal only)"
+    )
     parser.set_defaults(handler=_run_bench)
 
 
@@ -155,7 +157,9 @@ def _run_bench(args: argparse.Namespace) -> int:
     except BenchError as exc:
         print(f"membrane bench: {exc}", file=sys.stderr)
         return 1
-    progress = None if args.quiet else _progress_bars()
+    # A bar redraws with carriage returns: on a pipe or in a log file that is one long line of
+    # noise, so it shows only where a person watches a terminal.
+    progress = None if args.quiet or not sys.stderr.isatty() else _progress_bars()
     report = run_bench(
         target, spec, baseline=args.baseline, progress=progress, segments=args.segments
     )

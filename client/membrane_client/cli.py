@@ -1,4 +1,5 @@
-"""`membrane query` (one frame, as a summary or JSON) and `membrane ping` (a health check).
+"""`membrane query` (one frame, as a summary or JSON), `membrane ping` (a health check) and
+`membrane stats` (the server's counters and latency percentiles, for people or as JSON).
 
 Exit codes: 0 answered; 1 no answer (timeout) or a server-side failure; 2 bad input (including
 a request the server refuses as bad, such as a NaN time or an unknown scene).
@@ -19,7 +20,7 @@ from membrane_client.errors import MembraneError, ServerError
 from membrane_client.frame import Frame
 from membrane_client.protocol import ErrorCode
 
-__all__ = ["add_ping", "add_query"]
+__all__ = ["add_ping", "add_query", "add_stats", "stats_summary"]
 
 if TYPE_CHECKING:  # argparse's class is generic for type checkers only
     Subparsers = argparse._SubParsersAction[argparse.ArgumentParser]
@@ -61,6 +62,22 @@ def add_ping(subparsers: Subparsers) -> None:
     parser.set_defaults(handler=_run_ping)
 
 
+def add_stats(subparsers: Subparsers) -> None:
+    """Register `membrane stats`."""
+    parser = subparsers.add_parser(
+        "stats",
+        help="print a server's counters and latency percentiles",
+        description=(
+            "Ask a server for its figures since start (the protocol's stats op): requests by op, "
+            "scene and error code, sessions, and server-side latency percentiles. Exit 0 when it "
+            "answers, 1 otherwise."
+        ),
+    )
+    _add_connection_arguments(parser)
+    parser.add_argument("--json", action="store_true", help="print the reply as JSON")
+    parser.set_defaults(handler=_run_stats)
+
+
 def _add_connection_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--connect",
@@ -90,11 +107,29 @@ def _run_query(args: argparse.Namespace) -> int:
         with Client(
             args.connect, timeout=args.timeout, scene=args.scene, socket_options=options
         ) as client:
-            frame = client.query(args.t, dtype="<f8" if args.float64 else "<f4")
+            try:
+                frame = client.query(args.t, dtype="<f8" if args.float64 else "<f4")
+            except ServerError as exc:
+                if exc.code != ErrorCode.UNKNOWN_SCENE:
+                    raise
+                print(f"membrane query: {_scene_hint(client, args.scene)}", file=sys.stderr)
+                return 2
     except MembraneError as exc:
         return _report_failure("query", exc)
     print(json.dumps(frame_to_json(frame)) if args.json else frame_summary(frame))
     return 0
+
+
+def _scene_hint(client: Client, scene: str | None) -> str:
+    """What to do about an unknown_scene reply, in the command line's terms: the server's own
+    message names the wire field ('scene'); here the fix is the --scene flag."""
+    try:
+        hosted = ", ".join(str(name) for name in client.hello().get("scenes", []))
+    except MembraneError:
+        hosted = "?"  # the server stopped answering; the hint still says what to pass
+    if scene is None:
+        return f"the server hosts several scenes ({hosted}): pass --scene NAME"
+    return f"no scene {scene!r} on the server: pass --scene with one of: {hosted}"
 
 
 def _run_ping(args: argparse.Namespace) -> int:
@@ -113,6 +148,73 @@ def _run_ping(args: argparse.Namespace) -> int:
         f"({hello.get('server')}, protocol {hello.get('protocol')}, scenes: {scenes})"
     )
     return 0
+
+
+def _run_stats(args: argparse.Namespace) -> int:
+    _check_timeout(args.timeout)
+    options = _curve_options(args)
+    try:
+        with Client(args.connect, timeout=args.timeout, socket_options=options) as client:
+            stats = client.stats()
+    except MembraneError as exc:
+        return _report_failure("stats", exc)
+    print(json.dumps(stats, indent=2, sort_keys=True) if args.json else stats_summary(stats))
+    return 0
+
+
+def stats_summary(stats: dict[str, Any]) -> str:
+    """The ``stats`` reply as a few lines for people; fields this version does not know about
+    are printed as they came, so that a newer server's figures are not hidden."""
+    known = {"uptime_s", "requests", "sessions", "ops", "scenes", "errors", "latency_us"}
+    lines = [
+        f"up {_duration(float(stats.get('uptime_s', 0.0)))}, {stats.get('requests', 0)} "
+        f"requests, {stats.get('sessions', 0)} sessions",
+        f"ops: {_counts(stats.get('ops'))}",
+        f"queries by scene: {_counts(stats.get('scenes'))}",
+        f"errors: {_counts(stats.get('errors'))}",
+        _latency_line(stats.get("latency_us") or {}),
+    ]
+    for key in sorted(set(stats) - known):
+        value = stats[key]
+        text = _counts(value) if isinstance(value, dict) else json.dumps(value)
+        lines.append(f"{key.replace('_', ' ')}: {text}")
+    return "\n".join(lines)
+
+
+def _counts(counts: Any) -> str:
+    """``{"query": 3, "ping": 1}`` -> "query 3, ping 1" (largest first), or "none"."""
+    if not counts:
+        return "none"
+    ordered = sorted(counts.items(), key=lambda item: (-_number(item[1]), str(item[0])))
+    return ", ".join(f"{name} {value}" for name, value in ordered)
+
+
+def _number(value: Any) -> float:
+    return float(value) if isinstance(value, int | float) else 0.0
+
+
+def _latency_line(latency: dict[str, Any]) -> str:
+    count, window = latency.get("count", 0), latency.get("window", "?")
+    if not count or "p50" not in latency:
+        return "latency: no requests yet"
+    parts = ", ".join(
+        f"{label} {float(latency[key]):.1f}"
+        for key, label in (("p50", "p50"), ("p90", "p90"), ("p99", "p99"), ("p999", "p99.9"),
+                           ("max", "max"), ("mean", "mean"))
+        if key in latency
+    )  # fmt: skip
+    return f"latency (us, receipt to reply, last {count} of at most {window} requests): {parts}"
+
+
+def _duration(seconds: float) -> str:
+    """Seconds as '3.2 s', '4 min 05 s' or '2 h 03 min'."""
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    minutes, secs = divmod(int(seconds), 60)
+    if minutes < 60:
+        return f"{minutes} min {secs:02d} s"
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours} h {minutes:02d} min"
 
 
 def frame_to_json(frame: Frame) -> dict[str, Any]:

@@ -100,7 +100,8 @@ class Client:
         """The frame the scene serves for simulation time ``t`` (seconds).
 
         The first query of a scene also fetches its description (one extra round trip), so
-        that ``Frame.positions()`` works.
+        that ``Frame.positions()`` works; so does the first query after the server reloaded the
+        scene with changes (the reply's revision differs from the description's).
 
         Args:
             t: Simulation time, seconds.
@@ -109,7 +110,15 @@ class Client:
         """
         info = self.describe(scene)
         wire_dtype = None if dtype == "<f4" else dtype  # the default needs no field
-        reply = self.request(Op.QUERY, scene=scene or self.scene, t=float(t), dtype=wire_dtype)
+        fields = {"scene": scene or self.scene, "t": float(t), "dtype": wire_dtype}
+        reply = self.request(Op.QUERY, **fields)
+        if _revision(reply) not in (None, info.revision):
+            # The server reloaded this scene with changes: its lattice or placement may differ.
+            info = self.describe(scene, refresh=True)
+            logger.info("scene %s changed on the server (revision %s): described again",
+                        info.name, info.revision)  # fmt: skip
+            if _revision(reply) != info.revision:  # reloaded once more in between: ask again
+                reply = self.request(Op.QUERY, **fields)
         return Frame.from_reply(reply, info)
 
     def stats(self) -> dict[str, Any]:
@@ -213,3 +222,9 @@ class Client:
         socket, self._socket = self._socket, None
         if socket is not None and not socket.closed:
             socket.close(linger=0)
+
+
+def _revision(reply: dict[str, Any]) -> str | None:
+    """A query reply's scene revision (None from servers that send none)."""
+    revision = reply.get("revision")
+    return revision if isinstance(revision, str) else None

@@ -18,11 +18,13 @@ from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
 from typing import NoReturn
 
-__all__ = ["EXTRA_FOR_MODULE", "OneLineParser", "UsageError", "main"]
+__all__ = ["DISTRIBUTION", "EXTRA_FOR_MODULE", "OneLineParser", "UsageError", "main"]
 
 COMMAND_GROUP = "membrane.commands"
 
-# Which extra brings in each optional top-level module (for the "install membrane[...]" hint).
+# Which extra brings in each optional top-level module (for the "install membrane-tissue[...]"
+# hint). The distribution is `membrane-tissue`: `membrane` on the public index is another project.
+DISTRIBUTION = "membrane-tissue"
 EXTRA_FOR_MODULE: dict[str, str] = {
     "onnxruntime": "server",
     "pydantic": "server",
@@ -72,7 +74,9 @@ def _missing_extra_message(exc: ModuleNotFoundError) -> str:
     extra = EXTRA_FOR_MODULE.get(top)
     if extra is None:
         return f"missing module {exc.name!r}: {exc}"
-    return f"needs the '{extra}' extra: pip install 'membrane[{extra}]' ({top} is missing)"
+    return (
+        f"needs the '{extra}' extra: pip install '{DISTRIBUTION}[{extra}]' ({top} is missing)"
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:

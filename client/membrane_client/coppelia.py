@@ -463,6 +463,13 @@ class SphereLattice:
             current = float(sim.getSimulationTimeStep())
             if abs(current - dt) > 1e-12:
                 sim.setFloatParam(sim.floatparam_simulation_time_step, dt)
+                # The user's simulator setting changes (and stays changed): say so, once.
+                log.warning(
+                    "changed the simulator's time step from %g s to %g s (the scene's dt); "
+                    "it stays so after the run",
+                    current,
+                    dt,
+                )
         except AttributeError:
             log.warning("cannot set the simulator's time step to %g s; keeping its own", dt)
         except Exception as exc:

@@ -39,6 +39,8 @@ class SceneInfo:
         evaluator_info: The evaluator's own figures (memory, rank, ...).
         model: Model summary, including its measured error against the exact solution.
         units: Units of times, coordinates and displacements.
+        revision: Names the scene's content: a query reply with another revision means the
+            server reloaded the scene with changes (the client then describes it again).
     """
 
     name: str
@@ -59,6 +61,7 @@ class SceneInfo:
     evaluator_info: dict[str, Any] = field(default_factory=dict)
     model: dict[str, Any] = field(default_factory=dict)
     units: dict[str, Any] = field(default_factory=dict)
+    revision: str = ""
 
     @property
     def n_points(self) -> int:
@@ -116,6 +119,7 @@ class SceneInfo:
                 evaluator_info=evaluator,
                 model=dict(reply.get("model", {})),
                 units=dict(reply.get("units", {})),
+                revision=str(reply.get("revision", "")),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ProtocolError(f"malformed describe reply: {exc!r}") from None
@@ -149,6 +153,7 @@ class Frame:
         domain: 'inside', 'clamped' or 'held' (how the scene's policy treated the time).
         scene: Scene name.
         info: The scene's description, used by ``positions()``.
+        revision: The scene's revision that served this frame ("" from servers without one).
     """
 
     t: float
@@ -158,6 +163,7 @@ class Frame:
     domain: str
     scene: str
     info: SceneInfo | None = None
+    revision: str = ""
 
     def positions(self) -> np.ndarray:
         """(n, 3) world coordinates: rest position plus ``scale * z`` along the scene's axis."""
@@ -179,6 +185,7 @@ class Frame:
                 domain=str(reply.get("domain", "inside")),
                 scene=str(reply["scene"]),
                 info=info,
+                revision=str(reply.get("revision", "")),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ProtocolError(f"malformed query reply: {exc!r}") from None

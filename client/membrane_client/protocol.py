@@ -7,6 +7,7 @@ requests and build replies. It depends on msgpack and numpy only.
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import StrEnum
@@ -103,25 +104,19 @@ def decode(data: bytes, max_bytes: int = MAX_REPLY_BYTES) -> dict[str, Any]:
     if len(data) > max_bytes:
         raise ProtocolError(f"a message of {len(data)} bytes, more than the limit {max_bytes}")
     try:
-        # No string, array or map inside can be longer than the message itself.
-        message = msgpack.unpackb(
-            data,
-            raw=False,
-            strict_map_key=True,
-            max_str_len=len(data),
-            max_bin_len=len(data),
-            max_array_len=len(data),
-            max_map_len=len(data),
-            max_ext_len=len(data),
-        )
+        # unpackb bounds every string, array and map inside by the message's own length.
+        message = msgpack.unpackb(data, raw=False, strict_map_key=True)
     except Exception as exc:  # msgpack raises a zoo of types on garbage; all mean the same here
         reason = preview(str(exc))
         raise ProtocolError(f"not a msgpack message: {type(exc).__name__}: {reason}") from None
     if not isinstance(message, dict):
         raise ProtocolError(f"a message must be a msgpack map, got {type(message).__name__}")
-    if not all(isinstance(key, str) for key in message):
-        raise ProtocolError("a message's keys must all be strings")
-    if _nesting_exceeds(message, MAX_NESTING):
+    nested = False
+    for key, value in message.items():  # one pass: requests are flat, so this is the hot path
+        if type(key) is not str:
+            raise ProtocolError("a message's keys must all be strings")
+        nested = nested or type(value) is dict or type(value) is list
+    if nested and _nesting_exceeds(message, MAX_NESTING):
         raise ProtocolError(f"a message may nest at most {MAX_NESTING} levels deep")
     return message
 
@@ -133,7 +128,7 @@ def preview(value: Any) -> str:
     memory, or a RecursionError); scalars are shown up to a fixed number of characters.
     """
     if isinstance(value, dict | list | tuple):
-        return f"a {'map' if isinstance(value, dict) else 'array'} of {len(value)}"
+        return f"{'a map' if isinstance(value, dict) else 'an array'} of {len(value)}"
     if isinstance(value, str | bytes):
         text = repr(value[:_PREVIEW_CHARS])
         return text if len(value) <= _PREVIEW_CHARS else f"{text}... ({len(value)} long)"
@@ -180,14 +175,57 @@ def encode_fields(fields: Mapping[str, Any]) -> EncodedFields:
     return EncodedFields(len(fields), data)
 
 
-def encode_ok_reply(request_id: int | None, fields: EncodedFields) -> bytes:
-    """The bytes of ``encode(ok_reply(request_id, **fields))``, without serialising the fields
-    again (a large ``describe`` is encoded once per scene, not once per request)."""
-    packer = msgpack.Packer(use_bin_type=True)
-    envelope = {"v": PROTOCOL_VERSION, "id": request_id, "ok": True}
-    header = packer.pack_map_header(len(envelope) + fields.count)
-    body = b"".join(packer.pack(key) + packer.pack(value) for key, value in envelope.items())
-    return header + body + fields.data
+def encode_ok_reply(request_id: int | None, fields: EncodedFields, **extra: Any) -> bytes:
+    """The bytes of ``encode(ok_reply(request_id, **fields, **extra))``, without serialising
+    ``fields`` again (a large ``describe`` is encoded once per scene, a frame once per step)."""
+    parts = [
+        _map_header(len(_ENVELOPE_KEYS) + fields.count + len(extra)),
+        _VERSION_FIELD,
+        _ID_KEY,
+        _pack_scalar(request_id),
+        _OK_FIELD,
+        fields.data,
+    ]
+    for key, value in extra.items():
+        parts += (msgpack.packb(key), _pack_scalar(value))
+    return b"".join(parts)
+
+
+_ENVELOPE_KEYS = ("v", "id", "ok")
+_VERSION_FIELD: bytes = msgpack.packb("v") + msgpack.packb(PROTOCOL_VERSION)
+_ID_KEY: bytes = msgpack.packb("id")
+_OK_FIELD: bytes = msgpack.packb("ok") + msgpack.packb(True)
+
+
+def _pack_scalar(value: Any) -> bytes:
+    """msgpack bytes of an id or a time, without building a Packer per call (the hot path)."""
+    kind = type(value)
+    if kind is float:
+        return b"\xcb" + _FLOAT64.pack(value)
+    if kind is int and 0 <= value < 2**64:
+        if value < 128:
+            return _FIXINTS[value]
+        for marker, limit, width in _UINT_FORMATS:
+            if value < limit:
+                return marker + value.to_bytes(width, "big")
+    if value is None:
+        return b"\xc0"
+    packed: bytes = msgpack.packb(value, use_bin_type=True)
+    return packed
+
+
+_FLOAT64 = struct.Struct(">d")
+_FIXINTS = [bytes([n]) for n in range(128)]
+_UINT_FORMATS = ((b"\xcc", 2**8, 1), (b"\xcd", 2**16, 2), (b"\xce", 2**32, 4), (b"\xcf", 2**64, 8))
+
+
+def _map_header(count: int) -> bytes:
+    """msgpack's map header for ``count`` entries (fixmap, map 16 or map 32)."""
+    if count < 16:
+        return bytes([0x80 | count])
+    if count < 2**16:
+        return b"\xde" + count.to_bytes(2, "big")
+    return b"\xdf" + count.to_bytes(4, "big")
 
 
 def error_reply(request_id: int | None, code: ErrorCode | str, message: str) -> dict[str, Any]:

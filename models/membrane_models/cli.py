@@ -15,12 +15,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from membrane_models.problems import PROBLEMS, make_problem
+from membrane_models.problems import PARAMETER_HELP, PROBLEMS, make_problem
 
 if TYPE_CHECKING:
     from membrane_models.problems import Problem
 
-__all__ = ["UsageError", "add_exact", "parse_assignments"]
+__all__ = ["UsageError", "add_exact", "parameters_help", "parse_assignments"]
 
 logger = logging.getLogger(__name__)
 
@@ -42,6 +42,8 @@ def add_exact(subparsers: argparse._SubParsersAction) -> None:
             "domain and write x, [y,] t and u (shaped (nx[, ny], nt)) plus the parameters to "
             "an .npz file. Problems: " + ", ".join(sorted(PROBLEMS)) + "."
         ),
+        epilog=parameters_help(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,  # keeps the epilog's lines
     )
     parser.add_argument("problem", metavar="PROBLEM", help="problem name")
     parser.add_argument(
@@ -63,6 +65,20 @@ def add_exact(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", required=True, type=Path, help="output file (.npz)")
     parser.add_argument("--plot", type=Path, help="also draw the solution to this image (.png)")
     parser.set_defaults(handler=_run_exact)
+
+
+def parameters_help() -> str:
+    """Every problem's parameters with their defaults, and what each one means: the names that
+    --set (and a scene's [parameters] table) accept."""
+    lines = ["parameters (--set NAME=VALUE, or a scene file's [parameters]), with defaults:"]
+    for name in sorted(PROBLEMS):
+        values = make_problem(name).parameters()
+        lines.append(f"  {name}: " + ", ".join(f"{k}={v:g}" for k, v in values.items()))
+    lines.append("meaning:")
+    names = sorted({k for name in PROBLEMS for k in make_problem(name).parameters()})
+    width = max(len(k) for k in names)
+    lines += [f"  {k:<{width}}  {PARAMETER_HELP.get(k, '')}".rstrip() for k in names]
+    return "\n".join(lines)
 
 
 def parse_assignments(assignments: list[str]) -> dict[str, str]:

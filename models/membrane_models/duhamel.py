@@ -28,6 +28,10 @@ D_j = exp(i w t_j) conj(E(t_j)), so that during the force
     exp(i w t) conj(E(t)) = exp(i w l) (D_j + conj(partial)),
 
 one exponential per mode and query in all.
+
+Memory: the table is (P + 1) x M complex numbers (``BumpResponse.bytes_needed`` predicts what a
+response holds); it is built a block of modes at a time, so building needs only a few MiB
+beyond it (``_TABLE_BLOCK_BYTES``).
 """
 
 from __future__ import annotations
@@ -63,6 +67,9 @@ _ALTERNATING = (-1.0) ** np.arange(_TAYLOR_TERMS // 2)  # i^(2j) = (-1)^j, i^(2j
 _FACTORIALS = np.array([math.factorial(k) for k in range(_TAYLOR_TERMS)], dtype=np.float64)
 # Bytes of complex scratch per evaluation block (bounds memory for many modes x many times).
 _BLOCK_BYTES = 32 * 2**20
+# Bytes of one (P + 1) x block complex temporary while the table is built; the build holds
+# about six such temporaries besides the table itself.
+_TABLE_BLOCK_BYTES = 2 * 2**20
 
 
 def bump_integral(a: float) -> float:
@@ -136,6 +143,17 @@ class BumpResponse:
         self._mode_powers = (self.omega / w_max)[None, :] ** np.arange(_TAYLOR_TERMS)[:, None]
 
     @staticmethod
+    def bytes_needed(n_modes: int, omega_max: float, a: float) -> int:
+        """Bytes a response for ``n_modes`` modes up to ``omega_max`` holds (table, powers)."""
+        panels = int(BumpResponse.panels_needed(omega_max, a))
+        return n_modes * (16 * (panels + 1) + 8 * (_TAYLOR_TERMS + 1))
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes this response holds."""
+        return int(self._cumulative.nbytes + self._mode_powers.nbytes + self.omega.nbytes)
+
+    @staticmethod
     def panels_needed(omega_max: ArrayLike, a: float) -> NDArray[np.int64]:
         """Panels on [0, 1]: enough for the fastest mode's phase and for the bump's width."""
         bump = _PANELS_PER_BUMP_WIDTH * math.sqrt(8.0 * max(a - 1.0, 1.0))
@@ -175,27 +193,72 @@ class BumpResponse:
     # -- the table and the queries ----------------------------------------------------------
 
     def _panel_table(self) -> ComplexArray:
-        """D_j = exp(i w t_j) conj(E(t_j)) at the panel edges t_j = j h: shape (P + 1, M)."""
-        h, n = self.panel_width, self.n_panels
-        starts = np.arange(n, dtype=np.float64) * h
-        widths = np.full(n, h)
-        s, wg = self._interior(starts, widths)
-        s[0], wg[0] = (x[0] for x in self._from_zero(widths[:1]))
-        s[-1], wg[-1] = (x[0] for x in self._to_one(widths[:1]))
+        """D_j = exp(i w t_j) conj(E(t_j)) at the panel edges t_j = j h: shape (P + 1, M).
+
+        Built a block of panels by a block of modes at a time, E summed panel by panel along
+        each mode (a running carry), so that the temporaries stay at ``_TABLE_BLOCK_BYTES``
+        each however many panels (up to millions for a lone fast mode) or modes there are.
+        """
+        h, n, omega = self.panel_width, self.n_panels, self.omega
+        table = np.empty((n + 1, omega.size), dtype=np.complex128)
+        table[0] = 0.0  # E(0) = 0
+        carry = np.zeros(omega.size, dtype=np.complex128)  # E at the current panel edge
         # exp(i w s) = exp(i w p h) exp(i w (s - p h)): interior panels share their node
-        # offsets, so their integrals are one (P x Q) @ (Q x M) product.
-        per_panel = np.empty((n, self.omega.size), dtype=np.complex128)
-        inner = slice(1, n - 1)
-        local = np.exp(1j * np.outer(s[1] - starts[1], self.omega))  # (Q, M)
-        per_panel[inner] = wg[inner].astype(np.complex128) @ local
-        edges = np.exp(1j * np.outer(np.append(starts, 1.0), self.omega))  # (P + 1, M)
-        per_panel[inner] *= edges[inner]
-        ends = [0, n - 1]
-        phases = np.exp(1j * s[ends, :, None] * self.omega)  # (2, Q, M)
-        per_panel[ends] = np.einsum("bqm,bq->bm", phases, wg[ends])
-        cumulative = np.zeros((n + 1, self.omega.size), dtype=np.complex128)
-        np.cumsum(per_panel, axis=0, out=cumulative[1:])
-        return np.ascontiguousarray(edges * np.conj(cumulative))
+        # offsets (taken from panel 1), so their integrals are one (P x Q) @ (Q x M) product.
+        offsets = (h + h * self._legendre[0]) - h
+        panels = min(n, max(1, _TABLE_BLOCK_BYTES // (16 * _NODES_PER_PANEL)))
+        modes = max(1, _TABLE_BLOCK_BYTES // (16 * panels))
+        for first in range(0, n, panels):
+            index = np.arange(first, min(n, first + panels))
+            s, wg = self._panel_nodes(index)
+            edges = np.arange(index[0], index[-1] + 2)  # t_j = j h at this block's edges
+            times = np.where(edges == n, 1.0, edges.astype(np.float64) * h)
+            for lo in range(0, omega.size, modes):
+                part = slice(lo, lo + modes)
+                rotation = np.exp(1j * np.outer(times, omega[part]))  # exp(i w t_j)
+                sums = self._panel_integrals(index, s, wg, offsets, omega[part], rotation[:-1])
+                sums[0] += carry[part]  # the running sum, in the order a whole cumsum takes
+                np.cumsum(sums, axis=0, out=sums)
+                carry[part] = sums[-1]
+                np.conj(sums, out=sums)
+                table[index + 1, part] = rotation[1:] * sums
+        return table
+
+    def _panel_nodes(self, index: NDArray[np.int64]) -> tuple[FloatArray, FloatArray]:
+        """Nodes s and weights w g(s) of the panels ``index``: Jacobi rules on the end panels."""
+        h, n = self.panel_width, self.n_panels
+        s, wg = self._interior(index.astype(np.float64) * h, np.full(index.size, h))
+        widths = np.full(1, h)
+        if index[0] == 0:
+            s[0], wg[0] = (x[0] for x in self._from_zero(widths))
+        if index[-1] == n - 1:
+            s[-1], wg[-1] = (x[0] for x in self._to_one(widths))
+        return s, wg
+
+    def _panel_integrals(
+        self,
+        index: NDArray[np.int64],
+        s: FloatArray,
+        wg: FloatArray,
+        offsets: FloatArray,
+        omega: FloatArray,
+        rotation: ComplexArray,
+    ) -> ComplexArray:
+        """int over each panel of exp(i w s) g(s) ds: shape (panels, modes).
+
+        ``rotation`` is exp(i w t) at each panel's start (panels, modes).
+        """
+        n = self.n_panels
+        out = np.empty((index.size, omega.size), dtype=np.complex128)
+        inner = (index > 0) & (index < n - 1)
+        local = np.exp(1j * np.outer(offsets, omega))  # (Q, M)
+        out[inner] = wg[inner].astype(np.complex128) @ local
+        out[inner] *= rotation[inner]
+        ends = np.flatnonzero(~inner)
+        if ends.size:  # the first and last panels: Jacobi nodes, not shared offsets
+            phases = np.exp(1j * s[ends, :, None] * omega)  # (ends, Q, M)
+            out[ends] = np.einsum("bqm,bq->bm", phases, wg[ends])
+        return out
 
     def _moments(self, weighted_g: FloatArray, u: FloatArray) -> FloatArray:
         """c_k = sum_q wg_q u_q^k / k! for k < K: shape (n, K), one row per query."""

@@ -21,6 +21,7 @@ from membrane_models.problems import Problem, make_problem
 
 __all__ = [
     "ErrorReport",
+    "comparison_figure",
     "evaluate_model",
     "onnx_session",
     "plot_comparison",
@@ -111,8 +112,18 @@ def evaluate_model(manifest: Manifest) -> ErrorReport:
 
 
 def plot_comparison(report: ErrorReport, path: Path) -> None:
-    """predicted | exact | error: (x, t) maps for a string; for a membrane, (x, y) at the time of
-    the largest displacement."""
+    """predicted | exact | error, drawn to ``path`` (see ``comparison_figure``)."""
+    fig = comparison_figure(report)  # selects the file-only backend before pyplot is used
+    import matplotlib.pyplot as plt
+
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def comparison_figure(report: ErrorReport) -> Any:
+    """predicted | exact | error as a matplotlib Figure: (x, t) maps for a string, x across and t
+    up; for a membrane, (x, y) maps at the time of the largest displacement, x across and y up.
+    The same orientation as `membrane exact --plot` and the demo's plot."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -123,10 +134,13 @@ def plot_comparison(report: ErrorReport, path: Path) -> None:
         k = int(np.argmax(np.max(np.abs(exact), axis=(0, 1))))
         pred, exact = pred[:, :, k], exact[:, :, k]
         extent = [0.0, 1.0, 0.0, 1.0]
-        labels = ("y", "x", f"t = {report.axes[2][k]:.2f}")
+        labels = ("x", "y", f"t = {report.axes[2][k]:.2f}")
     else:
-        extent = [0.0, float(report.axes[1][-1]), 0.0, 1.0]
-        labels = ("t", "x", "")
+        extent = [0.0, 1.0, 0.0, float(report.axes[1][-1])]
+        labels = ("x", "t", "")
+    # Arrays are indexed [x, second axis]; imshow puts the first index down the rows, so the
+    # transpose puts x across.
+    pred, exact = pred.T, exact.T
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), constrained_layout=True)
     limit = float(np.max(np.abs(exact)))
     panels = (("predicted", pred, limit), ("exact", exact, limit), ("error", pred - exact, None))
@@ -142,5 +156,4 @@ def plot_comparison(report: ErrorReport, path: Path) -> None:
     fig.suptitle(
         f"{report.model}: relative L2 {report.relative_l2:.2e}, max abs {report.max_abs:.2e}"
     )
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig

@@ -14,7 +14,13 @@ from __future__ import annotations
 from membrane_models.modal import ForcedModalSolution, forced_modal_solution
 from membrane_models.plucked import PluckedDAlembert, PluckedFourier
 from membrane_models.problems import MembraneForced, Problem, StringForced, StringPlucked
-from membrane_models.solution import ExactSolution, FrameFunction, InvalidQuery
+from membrane_models.solution import (
+    ExactSolution,
+    FrameFunction,
+    InvalidQuery,
+    MemoryBudgetExceeded,
+    PointFrames,
+)
 
 __all__ = [
     "DEFAULT_RTOL",
@@ -22,27 +28,34 @@ __all__ = [
     "ForcedModalSolution",
     "FrameFunction",
     "InvalidQuery",
+    "MemoryBudgetExceeded",
     "PluckedDAlembert",
     "PluckedFourier",
+    "PointFrames",
     "exact_solution",
 ]
 
 DEFAULT_RTOL = 1e-10
 
 
-def exact_solution(problem: Problem, rtol: float = DEFAULT_RTOL) -> ExactSolution:
+def exact_solution(
+    problem: Problem, rtol: float = DEFAULT_RTOL, max_bytes: int | None = None
+) -> ExactSolution:
     """The exact solution of ``problem``, series truncated at relative error ``rtol``.
 
     Args:
         problem: any registered problem (see ``problems.make_problem``).
         rtol: bound on the relative truncation error of series solutions (ignored by the
             closed forms, which are exact).
+        max_bytes: most memory building the solution may take (None: the solvers' own fixed
+            limits only); what it then holds is ``memory_bytes``.
 
     Raises:
         ValueError: rtol not a positive number, or a problem type without an exact solution.
+        MemoryBudgetExceeded: (a ValueError) the solution needs more than ``max_bytes``.
     """
     if isinstance(problem, StringForced | MembraneForced):
-        return forced_modal_solution(problem, rtol)
+        return forced_modal_solution(problem, rtol, max_bytes)
     if isinstance(problem, StringPlucked):
         return PluckedDAlembert(problem)
     raise ValueError(f"no exact solution for {type(problem).__name__}")

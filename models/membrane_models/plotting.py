@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["plot_solution"]
+__all__ = ["plot_solution", "solution_figure"]
 
 FloatArray = NDArray[np.float64]
 
@@ -28,10 +28,18 @@ def _pyplot() -> Any:
 
 
 def plot_solution(path: Path, title: str, axes: dict[str, FloatArray], u: FloatArray) -> None:
-    """Draw ``u`` on its grid to ``path``.
+    """Draw ``u`` on its grid to ``path`` (image format from its suffix, e.g. .png); the
+    arguments are ``solution_figure``'s."""
+    figure = solution_figure(title, axes, u)
+    figure.savefig(path, dpi=110)
+    _pyplot().close(figure)
+
+
+def solution_figure(title: str, axes: dict[str, FloatArray], u: FloatArray) -> Any:
+    """``u`` on its grid as a matplotlib Figure: a string's (x, t) map, or a membrane's (x, y)
+    snapshots.
 
     Args:
-        path: image file (format from its suffix, e.g. .png).
         title: figure title (the problem name).
         axes: the coordinate arrays by name: x, t or x, y, t.
         u: values shaped (nx, nt) or (nx, ny, nt).
@@ -39,12 +47,13 @@ def plot_solution(path: Path, title: str, axes: dict[str, FloatArray], u: FloatA
     plt = _pyplot()
     limit = float(np.abs(u).max()) or 1.0
     if u.ndim == 2:
+        # x across, t up, like `membrane evaluate --plot` and the membrane's (x, y) panels.
         figure, axis = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
         image = axis.pcolormesh(
-            axes["t"], axes["x"], u, cmap="RdBu_r", vmin=-limit, vmax=limit, shading="auto"
+            axes["x"], axes["t"], u.T, cmap="RdBu_r", vmin=-limit, vmax=limit, shading="auto"
         )
-        axis.set_xlabel("t")
-        axis.set_ylabel("x")
+        axis.set_xlabel("x")
+        axis.set_ylabel("t")
         figure.colorbar(image, ax=axis, label="u")
     else:
         t = axes["t"]
@@ -70,5 +79,4 @@ def plot_solution(path: Path, title: str, axes: dict[str, FloatArray], u: FloatA
             axis.set_aspect("equal")
         figure.colorbar(image, ax=np.atleast_1d(grid).tolist(), label="z")
     figure.suptitle(title)
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
+    return figure

@@ -29,7 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtr
 
 from membrane_models.problems import StringPlucked
-from membrane_models.solution import ExactSolution, FrameFunction
+from membrane_models.solution import ExactSolution, PointFrames, check_budget
 
 __all__ = ["MAX_FOURIER_MODES", "PluckedDAlembert", "PluckedFourier", "pluck_extension"]
 
@@ -38,6 +38,8 @@ FloatArray = NDArray[np.float64]
 MAX_FOURIER_MODES = 4096
 _KERNEL_REACH = 40.0  # kinks farther than this many sigmas contribute below exp(-800)
 _BLOCK_ELEMENTS = 4 * 2**20
+# d'Alembert's frame: about this many (n,) float64 temporaries alive at once per call.
+_CLOSED_FORM_ARRAYS = 16
 
 
 def _smoothed_ramp_excess(s: FloatArray, sigma: float) -> FloatArray:
@@ -83,13 +85,15 @@ class PluckedDAlembert(ExactSolution):
         x = self.check_points(points)[:, 0]
         return self._values(x, self.check_times(t))
 
-    def on_points(self, points: ArrayLike) -> FrameFunction:
+    def on_points(self, points: ArrayLike, max_bytes: int | None = None) -> PointFrames:
         x = self.check_points(points)[:, 0]
+        nbytes = 8 * _CLOSED_FORM_ARRAYS * x.size  # nothing cached: the formula's temporaries
+        check_budget(f"d'Alembert's frames at {x.size} points", nbytes, max_bytes)
 
         def frame(t: float) -> FloatArray:
             return self._values(x, np.array([float(t)]))[:, 0]
 
-        return frame
+        return PointFrames(frame, nbytes, "closed form")
 
 
 class PluckedFourier(ExactSolution):
@@ -152,11 +156,15 @@ class PluckedFourier(ExactSolution):
             out[lo : lo + block] = self._basis(x[lo : lo + block]) @ amplitudes
         return out
 
-    def on_points(self, points: ArrayLike) -> FrameFunction:
+    def on_points(self, points: ArrayLike, max_bytes: int | None = None) -> PointFrames:
         x = self.check_points(points)[:, 0]
+        # A cross-check, not served: its (n, N) basis is built whole, or refused up front.
+        nbytes = 8 * x.size * (self.n_modes + 1)
+        what = f"the Fourier series' {self.n_modes} modes at {x.size} points"
+        check_budget(what, 2 * nbytes, max_bytes)  # the basis and a temporary while it is built
         weighted_basis = self._basis(x) * self.coefficients[None, :]
 
         def frame(t: float) -> FloatArray:
             return np.asarray(weighted_basis @ np.cos(self.omega * max(float(t), 0.0)))
 
-        return frame
+        return PointFrames(frame, 2 * nbytes, "dense")

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
+    "PARAMETER_HELP",
     "PROBLEMS",
     "InvalidProblem",
     "MembraneForced",
@@ -225,6 +226,19 @@ class StringPlucked(Problem):
         falling = self.height * (1.0 - x) / (1.0 - self.x0)
         return np.where(x <= self.x0, rising, falling)
 
+
+# What each parameter means, for `membrane exact --help` and docs/SCENES.md (one line each).
+PARAMETER_HELP: dict[str, str] = {
+    "c": "wave speed",
+    "t_end": "end of the time domain",
+    "h": "force amplitude (the force is -h exp(-k r^2) g_a(t))",
+    "a": "time bump exponent (>= 1; the force peaks at t = 0.5 and ends at t = 1)",
+    "k": "force concentration: the Gaussian's exp(-k r^2)",
+    "x0": "force centre on x (forced) or the pluck's apex (plucked), in (0, 1)",
+    "y0": "force centre on y, in (0, 1)",
+    "height": "pluck height",
+    "smoothing": "pluck smoothing: Gaussian standard deviation (0: a sharp kink)",
+}
 
 # Registry: name -> (class, default overrides). The smoothed pluck is a named variant.
 PROBLEMS: dict[str, tuple[type[Problem], dict[str, str]]] = {

@@ -6,25 +6,38 @@ An ``ExactSolution`` answers three kinds of question about u(x[, y], t):
     values on a tensor grid, shaped (nx, nt) or (nx, ny, nt);
 ``at_points(points, t)``
     values at scattered points (n, d) for a vector of times, shaped (n, nt);
-``on_points(points)``
+``on_points(points, max_bytes)``
     a frame function for a fixed set of points: everything spatial is computed once, so that
     each later call ``frame(t)`` returns the (n,) displacements cheaply.
 
 Points must lie in the closed unit domain; times may be any finite numbers (before t = 0 the
 system is at rest in its initial state).
+
+Memory is stated, so that a server can count it against a budget: ``memory_bytes`` is what a
+solution holds (a series' tables), ``PointFrames.nbytes`` what a frame function holds plus the
+scratch one call uses. Given ``max_bytes``, solutions evaluate in a form that fits (see
+``modal``) or raise ``MemoryBudgetExceeded`` with the figure, before allocating it.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from membrane_models.problems import Problem
 
-__all__ = ["ExactSolution", "FrameFunction", "InvalidQuery"]
+__all__ = [
+    "ExactSolution",
+    "FrameFunction",
+    "InvalidQuery",
+    "MemoryBudgetExceeded",
+    "PointFrames",
+    "check_budget",
+]
 
 FloatArray = NDArray[np.float64]
 FrameFunction = Callable[[float], FloatArray]
@@ -35,6 +48,49 @@ _DOMAIN_SLACK = 1e-12
 
 class InvalidQuery(ValueError):
     """Points or times an exact solution cannot be evaluated at."""
+
+
+class MemoryBudgetExceeded(ValueError):
+    """A solution, or its frames on a set of points, would need more memory than allowed.
+
+    Raised before the memory is allocated.
+
+    Attributes:
+        what: what needs the memory, in words.
+        needed: bytes it needs.
+        budget: bytes allowed.
+    """
+
+    def __init__(self, what: str, needed: int, budget: int) -> None:
+        super().__init__(f"{what} needs {needed} bytes, more than the {budget} allowed")
+        self.what = what
+        self.needed = int(needed)
+        self.budget = int(budget)
+
+
+def check_budget(what: str, needed: int, budget: int | None) -> None:
+    """Raise ``MemoryBudgetExceeded`` when ``needed`` bytes exceed ``budget`` (None: no limit)."""
+    if budget is not None and needed > budget:
+        raise MemoryBudgetExceeded(what, needed, budget)
+
+
+@dataclass(frozen=True)
+class PointFrames:
+    """A frame function on fixed points, ``frame(t) -> (n,)``, and the memory it takes.
+
+    Attributes:
+        compute: the function.
+        nbytes: bytes it holds between calls plus the most scratch one call allocates.
+        method: how its spatial part is evaluated (``dense``, ``grid``, ``chunked``,
+            ``closed form``), for reports.
+    """
+
+    compute: FrameFunction
+    nbytes: int
+    method: str
+
+    def __call__(self, t: float) -> FloatArray:
+        return self.compute(t)
 
 
 class ExactSolution(ABC):
@@ -62,8 +118,21 @@ class ExactSolution(ABC):
         """u at ``points`` (n, d), columns x[, y], for times ``t`` (nt,): shape (n, nt)."""
 
     @abstractmethod
-    def on_points(self, points: ArrayLike) -> FrameFunction:
-        """A function ``frame(t) -> (n,)`` for fixed ``points`` (n, d), cheap per call."""
+    def on_points(self, points: ArrayLike, max_bytes: int | None = None) -> PointFrames:
+        """A function ``frame(t) -> (n,)`` for fixed ``points`` (n, d), cheap per call.
+
+        Args:
+            points: (n, d) points in the unit domain.
+            max_bytes: most memory the function may hold and use per call (None: no limit).
+
+        Raises:
+            MemoryBudgetExceeded: no way of evaluating fits in ``max_bytes``.
+        """
+
+    @property
+    def memory_bytes(self) -> int:
+        """Bytes the solution itself holds (a series' tables); 0 for closed forms."""
+        return 0
 
     def grid(self, *axes: ArrayLike) -> FloatArray:
         """u on the tensor grid of ``x, t`` (string) or ``x, y, t`` (membrane).

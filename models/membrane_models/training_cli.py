@@ -1,7 +1,7 @@
 """`membrane train`, `membrane export` and `membrane evaluate`.
 
 This module imports with the core dependencies only; torch, onnxruntime and the rest are imported
-inside the handlers (the dispatcher turns a missing one into "install membrane[extra]").
+inside the handlers (the dispatcher turns a missing one into "install membrane-tissue[extra]").
 """
 
 from __future__ import annotations

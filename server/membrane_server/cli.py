@@ -16,6 +16,7 @@ if TYPE_CHECKING:  # annotations only: importing these at run time is the handle
     import zmq
 
     from membrane_server.security import CurveAuthenticator
+    from membrane_server.server import Server
 
 __all__ = ["add_serve"]
 
@@ -50,6 +51,14 @@ def add_serve(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
         "--threads", type=int, default=1, help="onnxruntime intra-op threads (default 1)"
     )
     parser.add_argument(
+        "--peer-budget",
+        type=int,
+        default=None,
+        metavar="BYTES",
+        help="bytes of unread replies kept per client before further ones are dropped "
+        "(default 1 MiB; docs/ROBUSTNESS.md)",
+    )
+    parser.add_argument(
         "--daemon",
         action="store_true",
         help="detach and run in the background; returns once the server answers",
@@ -76,16 +85,45 @@ def _run_serve(args: argparse.Namespace) -> int:
 
     if args.threads < 1:
         raise UsageError(f"--threads must be >= 1, got {args.threads}")
+    if args.peer_budget is not None and args.peer_budget < 1:
+        raise UsageError(f"--peer-budget must be a positive byte count, got {args.peer_budget}")
     if (args.pidfile or args.logfile) and not args.daemon:
         raise UsageError("--pidfile and --logfile go with --daemon")
     if (args.curve_secret is None) != (args.curve_clients is None):
         raise UsageError("--curve-secret and --curve-clients go together")
+    _check_endpoint(args.bind)  # before the CurveZMQ warning, which would misread a bad one
     _check_curve_keys(args)  # before detaching, so that a bad key is reported here
     _make_paths_absolute(args)
     scenes = args.scene or ["membrane"]
     if not args.daemon:
         return _serve(scenes, args, notify_ready=None)
     return _serve_detached(scenes, args)
+
+
+def _check_endpoint(bind: str) -> None:
+    """Refuse a --bind that ZeroMQ would only answer with "Invalid argument".
+
+    The usual slip is a bare host:port, which needs its transport: tcp://127.0.0.1:5555.
+    """
+    from membrane_client.commands import UsageError
+
+    transport, sep, rest = bind.partition("://")
+    if not sep:
+        example = f"tcp://{bind or '127.0.0.1:5555'}"
+        raise UsageError(
+            f"--bind needs a ZeroMQ endpoint with its transport, e.g. {example}; got {bind!r}"
+        )
+    if transport == "ipc" and rest:
+        return
+    if transport != "tcp":
+        raise UsageError(f"--bind: use a tcp:// (or ipc://) endpoint, got {bind!r}")
+    host, colon, port = rest.rpartition(":")
+    # ZeroMQ itself takes port 99999 without a word (and binds some other port).
+    if not colon or not host or not (port == "*" or (port.isdigit() and int(port) < 65536)):
+        raise UsageError(
+            f"--bind: a tcp endpoint is tcp://HOST:PORT (PORT up to 65535; * or 0 for a free "
+            f"one), e.g. tcp://127.0.0.1:5555; got {bind!r}"
+        )
 
 
 def _make_paths_absolute(args: argparse.Namespace) -> None:
@@ -118,7 +156,16 @@ def _serve(
 ) -> int:
     import zmq
 
-    from membrane_server.server import SHUTDOWN_LINGER_MS, Server
+    from membrane_server.server import (
+        DEFAULT_PEER_BUDGET,
+        SHUTDOWN_LINGER_MS,
+        Server,
+        raise_open_file_limit,
+    )
+
+    before, after = raise_open_file_limit()  # each client costs a descriptor
+    if after != before:
+        logger.info("open-file limit raised from %d to %d", before, after)
 
     # A context of our own, created here (after any fork) and terminated at the end: terminating
     # it is what lets the last replies leave before the process exits.
@@ -127,8 +174,14 @@ def _serve(
     try:
         options, authenticator = _secure(args, context)
         server = Server(
-            scenes, bind=args.bind, threads=args.threads, context=context, socket_options=options
+            scenes,
+            bind=args.bind,
+            threads=args.threads,
+            context=context,
+            socket_options=options,
+            peer_budget=args.peer_budget or DEFAULT_PEER_BUDGET,
         )
+        _warn_invisible_motion(server)
         server.install_signal_handlers()
 
         def announce(address: str) -> None:
@@ -145,6 +198,17 @@ def _serve(
         context.destroy(linger=SHUTDOWN_LINGER_MS)
     print("membrane serve: stopped", file=sys.stderr, flush=True)
     return 0
+
+
+def _warn_invisible_motion(server: Server) -> None:
+    """A scene whose spheres would not visibly move is served, with a warning: a first scene
+    file left at placement.scale = 1 looks like a server that sends nothing."""
+    from membrane_server.visibility import invisible_motion
+
+    for served in server.dispatcher.scenes.values():
+        warning = invisible_motion(served.scene, served.evaluator)
+        if warning is not None:
+            logger.warning("%s", warning)
 
 
 def _secure(

@@ -8,6 +8,7 @@ gets exactly one reply.
 from __future__ import annotations
 
 import functools
+import hashlib
 import logging
 import math
 import time
@@ -15,7 +16,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -39,7 +40,8 @@ from membrane_client.protocol import (
     preview,
 )
 from membrane_server.evaluators import Evaluator, build_evaluator
-from membrane_server.scene import Scene, load_scene
+from membrane_server.reply_cache import ReplyCache
+from membrane_server.scene import Scene, SceneError, load_scene
 from membrane_server.source import ModelSource, resolve_source
 from membrane_server.timeline import OutOfDomain, Sample, Timeline
 
@@ -94,9 +96,14 @@ class ServedScene:
             policy=scene.policy,
         )
         self.shape = scene.lattice.shape
-        self._description = self._describe()
+        description = self._describe()
+        # The revision names this content: a reload that changes anything a client relies on
+        # (lattice, placement, time grid, model) changes it, and clients see it in every reply.
+        self.revision = hashlib.sha256(encode_fields(description).data).hexdigest()[:12]
+        self._description = {**description, "revision": self.revision}
         # Encoded once: a 65,536-point lattice's describe is a megabyte of coordinates.
         self.encoded_description = encode_fields(self._description)
+        self._replies = ReplyCache()
 
     @classmethod
     def load(cls, scene: Scene | str | Path, threads: int = 1) -> ServedScene:
@@ -105,7 +112,10 @@ class ServedScene:
             scene = load_scene(scene)
         source = resolve_source(scene)
         started = time.perf_counter()
-        evaluator = build_evaluator(scene, source, threads=threads)
+        try:
+            evaluator = build_evaluator(scene, source, threads=threads)
+        except SceneError as exc:  # raised where the scene's file is not known: name it
+            raise scene.error(exc) from None
         logger.info(
             "scene %s: %s evaluator, %d points, model %s, built in %.2f s",
             scene.name, evaluator.kind, evaluator.n_points, source.summary()["name"],
@@ -124,12 +134,23 @@ class ServedScene:
 
     def query(self, t: float, dtype: str = "<f4") -> dict[str, Any]:
         """The ``query`` reply's fields for simulation time ``t`` (raises OutOfDomain)."""
+        return {**self._sample_fields(self.timeline.resolve(t), dtype), "requested_t": t}
+
+    def encoded_query(self, t: float, dtype: str = "<f4") -> EncodedFields:
+        """``query``'s fields but ``requested_t``, encoded; those of a time on a step come
+        from the reply cache (raises OutOfDomain)."""
         sample = self.timeline.resolve(t)
+        if sample.weight != 0.0:  # between two steps: interpolated, not cached
+            return encode_fields(self._sample_fields(sample, dtype))
+        key = (sample.step, dtype, sample.domain)
+        return self._replies.get(key, lambda: encode_fields(self._sample_fields(sample, dtype)))
+
+    def _sample_fields(self, sample: Sample, dtype: str) -> dict[str, Any]:
         return {
             "scene": self.name,
+            "revision": self.revision,
             "t": sample.t,
             "step": sample.step,
-            "requested_t": t,
             "domain": str(sample.domain),
             "z": pack_array(self.frame(sample).reshape(self.shape), dtype),
         }
@@ -168,6 +189,14 @@ class ServedScene:
         }
 
 
+class Prepared(NamedTuple):
+    """An op's reply fields, already encoded, plus a few to encode per request."""
+
+    fields: EncodedFields
+    extra: dict[str, Any]
+    scene: str | None = None
+
+
 @dataclass(frozen=True)
 class Answer:
     """A reply, plus what the stats need to know about the request."""
@@ -199,7 +228,8 @@ class Dispatcher:
             names = [served.name for served in scenes]
             raise ValueError(f"scene names must be distinct, got {names}")
         self._stats_snapshot = stats_snapshot or dict
-        self._ops: dict[str, Callable[[dict[str, Any]], dict[str, Any] | EncodedFields]] = {
+        self._only = scenes[0] if len(scenes) == 1 else None
+        self._ops: dict[str, Callable[[dict[str, Any]], dict[str, Any] | Prepared]] = {
             Op.HELLO: self._hello,
             Op.DESCRIBE: self._describe,
             Op.QUERY: self._query,
@@ -232,8 +262,9 @@ class Dispatcher:
         try:
             session = self._check_envelope(message, request_id)
             fields = self._ops[message["op"]](message)
-            if isinstance(fields, EncodedFields):
-                return Answer(encode_ok_reply(request_id, fields), op_name, None, None, session)
+            if isinstance(fields, Prepared):
+                reply = encode_ok_reply(request_id, fields.fields, **fields.extra)
+                return Answer(reply, op_name, None, fields.scene, session)
             reply = encode(ok_reply(request_id, **fields))
         except RequestError as exc:
             return self._error(request_id, exc.code, str(exc), op_name, session)
@@ -241,8 +272,7 @@ class Dispatcher:
             logger.exception("internal error answering op %s", op_name or "(invalid)")
             message_text = f"the server failed answering this request: {type(exc).__name__}"
             return self._error(request_id, ErrorCode.INTERNAL_ERROR, message_text, op_name, session)
-        scene = fields.get("scene") if op_name == Op.QUERY else None
-        return Answer(reply, op_name, None, scene, session)
+        return Answer(reply, op_name, None, None, session)
 
     # -- envelope ----------------------------------------------------------------------------
 
@@ -279,6 +309,8 @@ class Dispatcher:
     def _scene(self, message: dict[str, Any]) -> ServedScene:
         name = message.get("scene")
         if name is None:
+            if self._only is not None:  # the common case first: one scene, none named
+                return self._only
             if self.default_scene is None:
                 hosted = ", ".join(self.scenes)
                 raise RequestError(
@@ -325,10 +357,10 @@ class Dispatcher:
             },
         }
 
-    def _describe(self, message: dict[str, Any]) -> EncodedFields:
-        return self._scene(message).encoded_description
+    def _describe(self, message: dict[str, Any]) -> Prepared:
+        return Prepared(self._scene(message).encoded_description, {})
 
-    def _query(self, message: dict[str, Any]) -> dict[str, Any]:
+    def _query(self, message: dict[str, Any]) -> Prepared:
         served = self._scene(message)
         t = _time(message)
         dtype = message.get("dtype", "<f4")
@@ -337,9 +369,10 @@ class Dispatcher:
             reason = f"'dtype' must be one of {allowed}, got {preview(dtype)}"
             raise RequestError(ErrorCode.BAD_REQUEST, reason)
         try:
-            return served.query(t, dtype)
+            fields = served.encoded_query(t, dtype)
         except OutOfDomain as exc:
             raise RequestError(ErrorCode.OUT_OF_DOMAIN, str(exc)) from None
+        return Prepared(fields, {"requested_t": t}, served.name)
 
     def _stats(self, message: dict[str, Any]) -> dict[str, Any]:
         return self._stats_snapshot()

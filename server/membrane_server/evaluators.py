@@ -8,7 +8,10 @@
 - ``table``: every frame of the scene's time grid computed at load (memory reported and capped);
   a lookup per query, linear interpolation between frames for times off the grid.
 - ``exact``: the exact reference solution (membrane_models.exact), its grid frames computed
-  once at load in float64 when they fit in the scene's table budget.
+  once at load in float64 when they fit in the scene's table budget. Its working memory (the
+  series' tables, the modes' values on the lattice) counts against that budget too: it is
+  evaluated in a form that fits (see ``membrane_models.modal``), or refused at load with the
+  figure, and only what is left goes to frames.
 
 Evaluators are stateless: a frame depends on t alone, so any number of clients share one.
 Stateful models (advanced one step at a time from a client's initial condition) and
@@ -27,12 +30,14 @@ from typing import Any, ClassVar
 import numpy as np
 
 from membrane_models.problems import Problem
+from membrane_models.solution import ExactSolution, MemoryBudgetExceeded, PointFrames
 from membrane_server.runtime import GraphRunner, load_graph
-from membrane_server.scene import Scene, SceneError
+from membrane_server.scene import DEFAULT_TABLE_MAX_BYTES, Scene, SceneError
 from membrane_server.source import ModelSource, resolve_source
 
 __all__ = [
     "EVALUATORS",
+    "EXACT_WORKING_FLOOR_BYTES",
     "Evaluator",
     "ExactEvaluator",
     "FrameGrid",
@@ -46,6 +51,9 @@ logger = logging.getLogger(__name__)
 
 # Model times may exceed the trained domain's end by this much (float rounding of k * dt).
 _TIME_SLACK = 1e-9
+# The exact evaluator may always work in this much memory, even when a scene's table_max_bytes
+# is smaller (which then only means: no precomputed frames).
+EXACT_WORKING_FLOOR_BYTES = 16 * 2**20
 
 
 class Evaluator(ABC):
@@ -75,6 +83,12 @@ class Evaluator(ABC):
     def info(self) -> dict[str, Any]:
         """What ``describe`` reports about this evaluator (kind and its own figures)."""
         return {"kind": self.kind}
+
+    @property
+    def working_bytes(self) -> int:
+        """Memory it needs besides precomputed frames, when counted against a scene's budget
+        (the exact evaluator's; 0 for the network evaluators, whose caches are not counted)."""
+        return 0
 
 
 class NetworkEvaluator(Evaluator):
@@ -208,13 +222,15 @@ class TableEvaluator(Evaluator):
     def __init__(self, source: Evaluator, dt: float, last_step: int, max_bytes: int) -> None:
         super().__init__(source.points)
         self.source_kind = source.kind
+        self.source_bytes = source.working_bytes  # the source stays: it computes the frames
         # Exact frames keep their float64 digits; network outputs are float32 to begin with.
         dtype = np.float64 if source.kind == "exact" else np.float32
         needed = FrameGrid.bytes_needed(last_step, self.n_points, dtype)
-        if needed > max_bytes:
+        if needed + self.source_bytes > max_bytes:
+            working = f" (and {self.source_bytes} for its source)" if self.source_bytes else ""
             raise SceneError(
                 f"table_max_bytes: a table of {last_step + 1} frames x {self.n_points} points "
-                f"needs {needed} bytes, more than the limit {max_bytes}"
+                f"needs {needed} bytes{working}, more than the limit {max_bytes}"
             )
         self._grid = FrameGrid(source.frame, dt, last_step, self.n_points, dtype, "table")
 
@@ -228,26 +244,36 @@ class TableEvaluator(Evaluator):
         return self._grid.frames[step] if step is not None else self._grid.interpolate(t)
 
     def info(self) -> dict[str, Any]:
-        return {
+        info = {
             "kind": self.kind,
             "source": self.source_kind,
             "frames": self._grid.last_step + 1,
             "memory_bytes": self.memory_bytes,
         }
+        if self.source_bytes:
+            info["source_memory_bytes"] = self.source_bytes
+        return info
 
 
 class ExactEvaluator(Evaluator):
     """The exact solution (modal series or closed form) of the problem on the lattice.
 
-    When given the scene's time grid, the frames at its steps are computed once at load (in
-    float64, so nothing changes but the cost; about 1 ms per membrane frame otherwise); other
-    times are computed on demand.
+    Memory is counted against ``max_bytes`` (a scene's ``table_max_bytes``): first the working
+    memory, the series' tables and the spatial form on the lattice (a cached basis, a sine
+    transform on grids, or the basis recomputed in blocks, whichever fits; never less than
+    ``EXACT_WORKING_FLOOR_BYTES`` is allowed), then the frames of the time grid, computed
+    once at load in float64 when they fit in what is left (about 1 ms per membrane frame
+    otherwise); other times are computed on demand.
 
     Args:
         problem: The problem.
         points: (n, d) lattice coordinates.
         dt: Time step of the grid to precompute (None: compute every frame on demand).
         last_step: Last step of that grid.
+        max_bytes: The memory budget.
+
+    Raises:
+        SceneError: The working memory alone exceeds the budget (the message gives both).
     """
 
     kind = "exact"
@@ -258,18 +284,55 @@ class ExactEvaluator(Evaluator):
         points: np.ndarray,
         dt: float | None = None,
         last_step: int | None = None,
+        max_bytes: int = DEFAULT_TABLE_MAX_BYTES,
     ) -> None:
         super().__init__(points)
-        from membrane_models.exact import exact_solution  # scipy: only when this kind is used
-
         self.problem = problem
-        self._solution = exact_solution(problem)
-        self._at_time = self._solution.on_points(self.points)
+        self.max_bytes = int(max_bytes)
+        allowed = max(self.max_bytes, EXACT_WORKING_FLOOR_BYTES)
+        self._solution, self._at_time = self._build(problem, allowed)
         self._grid: FrameGrid | None = None
         if dt is not None and last_step is not None:
-            self._grid = FrameGrid(
-                self._compute, dt, last_step, self.n_points, np.float64, "exact frames"
+            self._grid = self._precompute(dt, last_step)
+
+    def _build(self, problem: Problem, allowed: int) -> tuple[ExactSolution, PointFrames]:
+        from membrane_models.exact import exact_solution  # scipy: only when this kind is used
+
+        try:
+            solution = exact_solution(problem, max_bytes=allowed)
+            frames = solution.on_points(self.points, max_bytes=allowed - solution.memory_bytes)
+        except MemoryBudgetExceeded as exc:
+            limit = (
+                f"the limit {allowed}"
+                if allowed == self.max_bytes
+                else f"the {allowed} any exact evaluator may use (table_max_bytes {self.max_bytes})"
             )
+            raise SceneError(
+                f"table_max_bytes: the exact evaluator of {problem.name} on {self.n_points} "
+                f"points: {exc.what} needs {exc.needed} bytes, more than {limit}"
+            ) from None
+        return solution, frames
+
+    def _precompute(self, dt: float, last_step: int) -> FrameGrid | None:
+        """The grid's frames, when they fit in what the working memory leaves of the budget."""
+        needed = FrameGrid.bytes_needed(last_step, self.n_points, np.float64)
+        if needed > self.max_bytes - self.working_bytes:
+            logger.info("exact frames of %s computed per query (%d bytes, %d left of %d)",
+                        self.problem.name, needed, max(0, self.max_bytes - self.working_bytes),
+                        self.max_bytes)  # fmt: skip
+            return None
+        return FrameGrid(self._compute, dt, last_step, self.n_points, np.float64, "exact frames")
+
+    @property
+    def working_bytes(self) -> int:
+        """The series' tables plus the frame function's spatial form and scratch."""
+        return int(self._solution.memory_bytes + self._at_time.nbytes)
+
+    @property
+    def memory_bytes(self) -> int:
+        """Everything counted against the budget: working memory and precomputed frames."""
+        frames = 0 if self._grid is None else int(self._grid.frames.nbytes)
+        return self.working_bytes + frames
 
     def _compute(self, t: float) -> np.ndarray:
         return np.asarray(self._at_time(t), dtype=np.float64).reshape(-1)
@@ -285,7 +348,10 @@ class ExactEvaluator(Evaluator):
             "modes": int(self._solution.n_modes),
             "truncation_error": float(self._solution.truncation_error),
             "precomputed_frames": 0 if self._grid is None else self._grid.last_step + 1,
-            "memory_bytes": 0 if self._grid is None else int(self._grid.frames.nbytes),
+            "spatial_method": self._at_time.method,
+            "working_bytes": self.working_bytes,
+            "memory_bytes": self.memory_bytes,
+            "max_bytes": self.max_bytes,
         }
 
 
@@ -328,8 +394,8 @@ def _direct_evaluator(
 ) -> Evaluator:
     """A network/separable evaluator (kind None: the fastest the model allows), or exact."""
     manifest = source.manifest
-    if manifest is None:
-        return _exact_evaluator(scene, source, points)
+    if manifest is None:  # a table of the exact solution: the table holds the frames
+        return ExactEvaluator(source.problem, points, max_bytes=scene.table_max_bytes)
     _check_time_domain(scene, source)
     if kind is None:
         kind = "separable" if manifest.separable else "network"
@@ -347,12 +413,9 @@ def _direct_evaluator(
 
 def _exact_evaluator(scene: Scene, source: ModelSource, points: np.ndarray) -> ExactEvaluator:
     """The exact solution, its grid frames precomputed when they fit in the table budget."""
-    needed = FrameGrid.bytes_needed(scene.last_step, points.shape[0], np.float64)
-    if needed > scene.table_max_bytes:
-        logger.info("scene %s: exact frames computed per query (%d bytes over budget)",
-                    scene.name, needed)  # fmt: skip
-        return ExactEvaluator(source.problem, points)
-    return ExactEvaluator(source.problem, points, scene.dt, scene.last_step)
+    return ExactEvaluator(
+        source.problem, points, scene.dt, scene.last_step, max_bytes=scene.table_max_bytes
+    )
 
 
 def _check_time_domain(scene: Scene, source: ModelSource) -> None:

@@ -7,6 +7,9 @@ a ``SceneError`` (a ValueError) whose message names the field and the reason.
 
 from __future__ import annotations
 
+import json
+import math
+import re
 import tomllib
 from collections.abc import Sequence
 from importlib import resources
@@ -18,6 +21,7 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    StrictFloat,
     ValidationError,
     ValidationInfo,
     field_validator,
@@ -25,9 +29,11 @@ from pydantic import (
 )
 
 from membrane_client.protocol import MAX_LATTICE_POINTS
+from membrane_models.problems import PROBLEMS, make_problem
 
 __all__ = [
     "DEFAULT_TABLE_MAX_BYTES",
+    "MAX_STEPS",
     "SCENES_DIR",
     "EvaluatorKind",
     "Lattice",
@@ -36,14 +42,22 @@ __all__ = [
     "SceneError",
     "builtin_scenes",
     "load_scene",
+    "problem_overrides",
 ]
 
 SCENES_DIR = Path(str(resources.files("membrane_server") / "scenes"))
 DEFAULT_TABLE_MAX_BYTES = 256 * 1024 * 1024
 # A duration counts as a whole number of steps when it is within this many steps of one.
 _STEP_TOLERANCE = 1e-9
+# Most steps in a scene: every step index (and k * dt's position) is exact in float64.
+MAX_STEPS = 2**53 - 1
+# A step must span this many float64 numbers at the scene's latest time, so that a time can be
+# snapped to its step (and interpolated within it) to about a thousandth of a step.
+_MIN_ULPS_PER_STEP = 1024
 
 EvaluatorKind = Literal["network", "separable", "table", "exact"]
+_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$"
+_NAME_RULE = "letters, digits and _.- (a letter or digit first), at most 64 characters"
 
 
 class SceneError(ValueError):
@@ -51,8 +65,10 @@ class SceneError(ValueError):
 
 
 class _Strict(BaseModel):
-    # Unknown keys are typos; NaN and infinities are never meaningful in a scene.
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    # Unknown keys are typos; NaN and infinities are never meaningful in a scene. Strict types:
+    # `dt = "0.01"` or `nx = 20.0` is a slip to point out, not to convert (an int is still a
+    # number wherever a float belongs).
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
 
 
 class Lattice(_Strict):
@@ -148,7 +164,10 @@ class Placement(_Strict):
     along ``axis``.
     """
 
-    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # TOML has arrays, not tuples: the tuple itself is lax (a list converts), its numbers strict.
+    origin: tuple[StrictFloat, StrictFloat, StrictFloat] = Field(
+        default=(0.0, 0.0, 0.0), strict=False
+    )
     size: float = Field(default=1.0, gt=0.0)
     scale: float = 1.0
     axis: Literal["x", "y", "z"] = "z"
@@ -157,10 +176,13 @@ class Placement(_Strict):
 class Scene(_Strict):
     """One served scene (field reference: docs/SCENES.md)."""
 
-    name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
+    name: str = Field(pattern=_NAME_PATTERN)
     description: str = ""
     model: str = Field(min_length=1)
     evaluator: EvaluatorKind
+    # The problem's own parameters (wave speed c, force place x0/y0, amplitude h, ...), for an
+    # exact scene: checked as `membrane exact --set` checks them.
+    parameters: dict[str, float] | None = None
     lattice: Lattice
     placement: Placement = Placement()
     dt: float = Field(gt=0.0)
@@ -179,11 +201,64 @@ class Scene(_Strict):
         if dt is None:  # dt itself failed validation; that error is reported
             return duration
         ratio = duration / dt
+        if not math.isfinite(ratio) or ratio > MAX_STEPS:  # dt = 5e-324 overflows the ratio
+            raise ValueError(
+                f"{duration} s of dt ({dt}) steps is {ratio:.6g} steps, more than the limit "
+                f"{MAX_STEPS} (2^53 - 1: step indices exact in float64)"
+            )
         if round(ratio) < 1 or abs(ratio - round(ratio)) > _STEP_TOLERANCE * max(1.0, ratio):
             raise ValueError(
                 f"must be a whole number (>= 1) of dt ({dt}) steps, got {ratio:.6g} steps"
             )
         return duration
+
+    @field_validator("parameters")
+    @classmethod
+    def _problem_parameters(
+        cls, parameters: dict[str, float] | None, info: ValidationInfo
+    ) -> dict[str, float] | None:
+        if parameters is None:
+            return None
+        model, evaluator = info.data.get("model"), info.data.get("evaluator")
+        if model is None or evaluator is None:  # their own errors are reported
+            return parameters
+        if evaluator != "exact" or model not in PROBLEMS:
+            raise ValueError(
+                "only for evaluator 'exact' with a problem as model "
+                f"({', '.join(sorted(PROBLEMS))}): a trained model's parameters are the ones "
+                "it was trained on (train one with `membrane train --set`)"
+            )
+        make_problem(model, problem_overrides(parameters))  # InvalidProblem names the parameter
+        return parameters
+
+    @model_validator(mode="after")
+    def _distinct_step_times(self) -> Scene:
+        # Step times are start_offset + k * dt in float64: past some offset, consecutive steps
+        # round to the same time (or too few distinct times to snap to), and queries would
+        # silently get the wrong step.
+        latest = max(abs(self.start_offset), abs(self.start_offset + self.duration))
+        resolution = _MIN_ULPS_PER_STEP * math.ulp(latest)
+        if self.dt < resolution:
+            raise ValueError(
+                f"start_offset: step times near {latest:.6g} s are float64 numbers "
+                f"{math.ulp(latest):.3g} s apart; dt ({self.dt} s) must be at least "
+                f"{resolution:.3g} s there (or start_offset smaller) so that steps stay distinct"
+            )
+        return self
+
+    @property
+    def where(self) -> str:
+        """How error messages name this scene: its file when it has one, else its name."""
+        return f"scene {self.source}" if self.source is not None else f"scene {self.name}"
+
+    def error(self, exc: Exception) -> SceneError:
+        """``exc`` as a SceneError that names this scene's file (once), for errors raised where
+        the scene is not known (a lattice, an evaluator's budget)."""
+        message = str(exc)
+        if message.startswith(f"{self.where}:"):
+            return SceneError(message)
+        stale = f"scene {self.name}: "  # named by its name only: the file says more
+        return SceneError(f"{self.where}: {message.removeprefix(stale)}")
 
     @property
     def last_step(self) -> int:
@@ -203,6 +278,11 @@ class Scene(_Strict):
         if not path.is_absolute() and self.source is not None:
             path = self.source.parent / path
         return path
+
+
+def problem_overrides(parameters: dict[str, float] | None) -> dict[str, str]:
+    """A scene's ``[parameters]`` as ``make_problem`` overrides (``repr`` keeps every digit)."""
+    return {name: repr(float(value)) for name, value in (parameters or {}).items()}
 
 
 def builtin_scenes() -> list[str]:
@@ -226,13 +306,27 @@ def load_scene(name_or_path: str | Path) -> Scene:
         raise SceneError(f"cannot read scene {path}: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"scene {path}: invalid TOML: {exc}") from None
-    data.setdefault("name", path.stem)
+    if "name" not in data:
+        _check_stem(path)
+        data["name"] = path.stem
     return scene_from_dict(data, source=path.resolve())
 
 
+def _check_stem(path: Path) -> None:
+    """The file's stem is the default name: when it cannot be one, say how to name the scene."""
+    if re.fullmatch(_NAME_PATTERN, path.stem):
+        return
+    fixed = re.sub(r"[^A-Za-z0-9_.\-]+", "-", path.stem).strip("_.-")[:64] or "scene"
+    raise SceneError(
+        f"scene {path.resolve()}: name: the file's stem {path.stem!r} is not a scene name "
+        f"({_NAME_RULE}); set one in the file, e.g. name = {json.dumps(fixed)}"
+    )
+
+
 def scene_from_dict(data: dict[str, Any], source: Path | None = None) -> Scene:
-    """Validate a scene given as plain data (parsed TOML); raises SceneError naming fields."""
-    where = f"scene {source}" if source is not None else "scene"
+    """Validate a scene given as plain data (parsed TOML); raises SceneError naming fields
+    (and the file, when ``source`` is given)."""
+    where = f"scene {source}" if source is not None else f"scene {data.get('name', '')}".rstrip()
     if "source" in data:
         raise SceneError(f"{where}: source: not a scene field")
     try:
@@ -253,10 +347,24 @@ def _scene_path(name_or_path: str | Path) -> Path:
     return builtin
 
 
+def _strict_type_hint(error: Any) -> str:
+    """What a strict type refused, when it is a quoted number or a boolean (else nothing)."""
+    value = error.get("input")
+    if not str(error.get("type", "")).endswith("_type"):
+        return ""
+    if isinstance(value, bool):
+        return f", got the boolean {str(value).lower()}"
+    if isinstance(value, str):
+        return f", got the string {value!r} (numbers go without quotes)"
+    return ""
+
+
 def _describe_errors(exc: ValidationError) -> str:
     parts = []
     for error in exc.errors(include_url=False):
-        location = ".".join(str(part) for part in error["loc"]) or "scene"
+        location = ".".join(str(part) for part in error["loc"])
         message = str(error["msg"]).removeprefix("Value error, ")
-        parts.append(f"{location}: {message}")
+        message += _strict_type_hint(error)
+        # A whole-scene check names its fields in its message: no location to add.
+        parts.append(f"{location}: {message}" if location else message)
     return "; ".join(parts)

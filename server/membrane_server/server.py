@@ -16,6 +16,7 @@ any thread) sets a flag; the loop finishes the reply in flight, closes its socke
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import logging
 import resource
 import signal
@@ -29,6 +30,7 @@ import zmq
 
 from membrane_client.protocol import MAX_REQUEST_BYTES, ErrorCode, encode, error_reply
 from membrane_server.dispatch import Answer, Dispatcher, ServedScene
+from membrane_server.reloading import SceneBuilder, describe_changes
 from membrane_server.scene import Scene, load_scene
 from membrane_server.stats import Stats
 
@@ -53,11 +55,14 @@ SHUTDOWN_LINGER_MS = 1000
 _START_TIMEOUT_S = 10.0
 # Bytes of replies ZeroMQ may hold for one peer that does not read (its send high-water mark is
 # derived from this); a peer past it has further replies dropped, never queued.
-DEFAULT_PEER_BUDGET = 2 * 1024 * 1024
+DEFAULT_PEER_BUDGET = 1024 * 1024
 # Never fewer queued replies than this per peer, whatever the budget: a client may pipeline.
 _MIN_QUEUED_REPLIES = 2
-# Requests queued per peer before ZeroMQ stops reading its connection (back-pressure, not loss).
-_MAX_QUEUED_REQUESTS = 64
+# Requests (up to 64 KiB each) queued per peer before ZeroMQ stops reading its connection:
+# back-pressure on that peer, nothing lost. Sized like the reply queue, from the peer budget.
+_MIN_QUEUED_REQUESTS = 16
+# At shutdown, how long to wait for more requests to discard once none is queued.
+_DRAIN_QUIET_MS = 20
 # Bytes a reply needs beyond its arrays: the envelope and the scene's other fields.
 _REPLY_OVERHEAD = 4096
 
@@ -104,6 +109,8 @@ class Server:
         self._stop = threading.Event()
         self._reload = threading.Event()
         self._thread: threading.Thread | None = None
+        self._memory = IdleMemoryRelease()
+        self._builder = SceneBuilder(lambda: _load_scenes(self._sources, self._threads))
         self._bound = threading.Event()
         self._start_error: BaseException | None = None
 
@@ -173,24 +180,29 @@ class Server:
                 logger.warning("server thread still running %.1f s after stop", timeout)
 
     def request_reload(self) -> None:
-        """Ask the loop to reload its scenes between two requests (what SIGHUP calls).
+        """Ask for the scenes to be reloaded (what SIGHUP calls).
 
-        Scene files and models are read again and evaluators rebuilt while the socket stays
-        bound: clients are not dropped, their requests wait in the queue meanwhile. If the new
-        scenes fail to load, the old ones keep serving and the error is logged.
+        Scene files and models are read again and evaluators rebuilt in a worker thread while
+        the old scenes keep answering; the new ones are swapped in between two requests. If
+        they fail to load, the old ones keep serving and the error is logged. A request during
+        a build starts another build once it is done.
         """
         self._reload.set()
 
     def reload(self) -> None:
-        """Reload the scenes now (from the serving thread, or before serving)."""
+        """Reload the scenes now, in the calling thread (before serving, or in tests)."""
         self._reload.clear()
         try:
             served = _load_scenes(self._sources, self._threads)
         except Exception as exc:
             logger.error("reload failed, still serving the previous scenes: %s", exc)
             return
+        self._swap_in(served)
+
+    def _swap_in(self, served: list[ServedScene]) -> None:
+        changes = describe_changes(self.dispatcher.scenes, served)
         self.dispatcher = Dispatcher(served, self.stats.snapshot)
-        logger.info("reloaded scenes: %s", ", ".join(self.scene_names))
+        logger.info("reloaded scenes: %s", changes)
 
     @property
     def stopping(self) -> bool:
@@ -243,13 +255,16 @@ class Server:
             logger.exception("server loop failed")
 
     def _serve(self, socket: zmq.Socket[bytes]) -> None:
+        unanswered = 0
         try:
             self._loop(socket)
+            unanswered = _drain_requests(socket, SHUTDOWN_LINGER_MS / 1000)
         finally:
             socket.close(linger=SHUTDOWN_LINGER_MS)  # the reply in flight still goes out
             requests, dropped = self.stats.requests, sum(self.stats.dropped.values())
-            logger.info("server on %s stopped after %d requests (%d replies dropped)",
-                        self._address, requests, dropped)  # fmt: skip
+            logger.info("server on %s stopped after %d requests (%d replies dropped, "
+                        "%d requests left unanswered)", self._address, requests, dropped,
+                        unanswered)  # fmt: skip
 
     def _bind_socket(self) -> zmq.Socket[bytes]:
         socket: zmq.Socket[bytes] = self._context.socket(zmq.ROUTER)
@@ -259,7 +274,8 @@ class Server:
         socket.setsockopt(zmq.ROUTER_MANDATORY, 1)
         queued = send_queue_limit(self.peer_budget, self._largest_reply_bytes())
         socket.setsockopt(zmq.SNDHWM, queued)
-        socket.setsockopt(zmq.RCVHWM, _MAX_QUEUED_REQUESTS)
+        requests = max(_MIN_QUEUED_REQUESTS, self.peer_budget // MAX_REQUEST_BYTES)
+        socket.setsockopt(zmq.RCVHWM, requests)
         logger.info("per peer: at most %d unread replies (budget %d bytes)",
                     queued, self.peer_budget)  # fmt: skip
         for option, value in self._socket_options.items():
@@ -274,6 +290,17 @@ class Server:
         logger.info("serving %s on %s", ", ".join(self.scene_names), self._address)
         return socket
 
+    def _reload_between_requests(self, socket: zmq.Socket[bytes]) -> None:
+        if self._reload.is_set() and self._builder.start():
+            self._reload.clear()
+        served = self._builder.take()
+        if served is None:
+            return
+        self._swap_in(served)
+        # Connections made from now on get a queue sized for the new scenes' replies.
+        queued = send_queue_limit(self.peer_budget, self._largest_reply_bytes())
+        socket.setsockopt(zmq.SNDHWM, queued)
+
     def _largest_reply_bytes(self) -> int:
         """The largest reply any hosted scene sends: its describe, or a float64 frame."""
         largest = 0
@@ -286,9 +313,9 @@ class Server:
         poller = zmq.Poller()
         poller.register(socket, zmq.POLLIN)
         while not self._stop.is_set():
-            if self._reload.is_set():
-                self.reload()
+            self._reload_between_requests(socket)
             if not poller.poll(_POLL_MS):
+                self._memory.release_when_idle(self.stats.requests)
                 continue
             # Drain what is queued, checking the stop flag between requests.
             while not self._stop.is_set():
@@ -324,6 +351,60 @@ class Server:
         self.stats.record(
             time.perf_counter() - received, answer.op, answer.error, answer.scene, answer.session
         )
+
+
+class IdleMemoryRelease:
+    """Hands freed heap memory back to the system when the server is idle.
+
+    Replies queued for peers that never read (up to their budget each) are freed when those
+    peers leave, but glibc keeps the freed small blocks in its heap: the RSS would stay at its
+    peak. ``malloc_trim`` returns them; it walks the heap, so it runs only when no request
+    waits, at most every ``interval`` seconds, and only after requests were served since.
+    """
+
+    def __init__(self, interval: float = 5.0) -> None:
+        self._interval = interval
+        self._last = time.monotonic()
+        self._requests_then = 0
+        self._trim = _malloc_trim()
+
+    def release_when_idle(self, requests: int) -> None:
+        """Call when the loop found nothing to do; ``requests`` is the count served so far."""
+        now = time.monotonic()
+        busy_since = requests != self._requests_then
+        if self._trim is None or not busy_since or now - self._last < self._interval:
+            return
+        self._last, self._requests_then = now, requests
+        self._trim(0)
+
+
+def _malloc_trim() -> Callable[[int], int] | None:
+    """glibc's ``malloc_trim``, or None where the C library has none (musl, macOS)."""
+    try:
+        libc = ctypes.CDLL(None)
+        trim: Callable[[int], int] = libc.malloc_trim
+    except (OSError, AttributeError):
+        return None
+    return trim
+
+
+def _drain_requests(socket: zmq.Socket[bytes], limit_s: float) -> int:
+    """Read and discard the requests still queued (for at most ``limit_s``); returns how many.
+
+    Closing a TCP connection whose received data was never read makes the kernel reset it, and
+    a reset throws away the replies still travelling to that client: a client that pipelined
+    more requests than the server answered before stopping would lose answered replies too.
+    """
+    discarded, deadline = 0, time.monotonic() + limit_s
+    while time.monotonic() < deadline:
+        try:
+            socket.recv_multipart(zmq.NOBLOCK)
+        except zmq.Again:
+            if not socket.poll(_DRAIN_QUIET_MS, zmq.POLLIN):
+                break
+            continue
+        discarded += 1
+    return discarded
 
 
 def _log_failure() -> None:

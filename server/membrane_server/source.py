@@ -8,7 +8,7 @@ from typing import Any
 from membrane_models.manifest import Manifest
 from membrane_models.problems import PROBLEMS, Problem, make_problem
 from membrane_models.zoo_index import list_models, resolve_model
-from membrane_server.scene import Scene, SceneError
+from membrane_server.scene import Scene, SceneError, problem_overrides
 
 __all__ = ["ModelSource", "resolve_source"]
 
@@ -73,15 +73,27 @@ def resolve_source(scene: Scene) -> ModelSource:
     later, at load.
 
     Raises:
-        SceneError: Unknown model, or a problem name with an evaluator that needs a network.
+        SceneError: Unknown model, a problem name with an evaluator that needs a network, or a
+            lattice that does not fit the model's space (each naming the scene's file).
     """
+    source = _resolve(scene)
+    try:  # the lattice against the model's space, here where the scene file can be named
+        scene.lattice.coordinates(source.spatial_bounds)
+    except SceneError as exc:
+        raise scene.error(exc) from None
+    return source
+
+
+def _resolve(scene: Scene) -> ModelSource:
+    """The problem, or the trained model's manifest and problem (resolve_source's first part)."""
     path = scene.model_path()
     if path is None and scene.model in PROBLEMS:
         if scene.evaluator == "exact":  # a problem name means the problem here
-            return ModelSource(problem=make_problem(scene.model))
+            overrides = problem_overrides(scene.parameters)  # checked when the scene was read
+            return ModelSource(problem=make_problem(scene.model, overrides))
         if scene.model not in list_models():
             raise SceneError(
-                f"scene {scene.name}: model: {scene.model!r} is a problem with no trained model "
+                f"{scene.where}: model: {scene.model!r} is a problem with no trained model "
                 f"in the zoo; evaluator {scene.evaluator!r} needs a zoo model or a .json/.onnx "
                 "path (or use evaluator 'exact')"
             )
@@ -90,5 +102,5 @@ def resolve_source(scene: Scene) -> ModelSource:
         overrides = {key: str(value) for key, value in manifest.parameters.items()}
         problem = make_problem(manifest.problem, overrides)
     except ValueError as exc:  # ManifestError and InvalidProblem are ValueErrors
-        raise SceneError(f"scene {scene.name}: model: {exc}") from None
+        raise SceneError(f"{scene.where}: model: {exc}") from None
     return ModelSource(problem=problem, manifest=manifest)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, NamedTuple
 
 from membrane_client.protocol import Domain
 
@@ -23,9 +23,8 @@ class OutOfDomain(ValueError):
     """A time outside the scene's domain under the ``error`` policy."""
 
 
-@dataclass(frozen=True)
-class Sample:
-    """What to serve for one requested time.
+class Sample(NamedTuple):
+    """What to serve for one requested time (a tuple: one is made per query).
 
     Attributes:
         step: Step index k (under linear snapping, the step at or before the time).

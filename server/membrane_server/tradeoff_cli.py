@@ -29,13 +29,14 @@ def add_tradeoff(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]
             "plot. Exit code 1 when no case could be measured."
         ),
     )
+    # Required: a default path would overwrite whatever docs/ the current directory holds.
     parser.add_argument(
-        "--out", type=Path, default=Path("docs/TRADEOFF.md"), metavar="FILE",
-        help="markdown table to write (default docs/TRADEOFF.md)",
+        "--out", type=Path, required=True, metavar="FILE",
+        help="markdown table to write (the project's own: docs/TRADEOFF.md)",
     )  # fmt: skip
     parser.add_argument(
-        "--plot", type=Path, default=Path("docs/tradeoff.png"), metavar="FILE",
-        help="Pareto plot to write, PNG (default docs/tradeoff.png)",
+        "--plot", type=Path, default=None, metavar="FILE",
+        help="Pareto plot to write, PNG (default: --out with the suffix .png)",
     )  # fmt: skip
     parser.add_argument("--no-plot", action="store_true", help="write the table only")
     parser.add_argument(
@@ -64,6 +65,8 @@ def _run_tradeoff(args: argparse.Namespace) -> int:
     )
     from membrane_server.tradeoff_report import markdown_report, plot_tradeoff
 
+    if args.plot is None:
+        args.plot = args.out.with_suffix(".png")
     plot_path = None if args.no_plot else args.plot
     if plot_path is not None:
         import matplotlib  # noqa: F401  (fail before measuring when the plot extra is missing)
