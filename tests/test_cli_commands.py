@@ -171,6 +171,8 @@ def test_exact_help_lists_every_problems_parameters() -> None:
 
 
 def test_stats_summary_wording_and_fields_it_does_not_know() -> None:
-    summary = stats_summary({"uptime_s": 3725.0, "requests": 0, "sessions": 0, "extra": 1})
+    reply = {"v": 1, "id": 7, "ok": True, "uptime_s": 3725.0, "requests": 0, "sessions": 0}
+    summary = stats_summary({**reply, "extra": 1})
     assert summary.startswith("up 1 h 02 min, 0 requests, 0 sessions")
     assert "latency: no requests yet" in summary and "extra: 1" in summary.splitlines()
+    assert not any(line.split(":")[0] in ("v", "id", "ok") for line in summary.splitlines())

@@ -166,6 +166,7 @@ def stats_summary(stats: dict[str, Any]) -> str:
     """The ``stats`` reply as a few lines for people; fields this version does not know about
     are printed as they came, so that a newer server's figures are not hidden."""
     known = {"uptime_s", "requests", "sessions", "ops", "scenes", "errors", "latency_us"}
+    known |= {"v", "id", "ok"}  # the reply's envelope, not figures
     lines = [
         f"up {_duration(float(stats.get('uptime_s', 0.0)))}, {stats.get('requests', 0)} "
         f"requests, {stats.get('sessions', 0)} sessions",
