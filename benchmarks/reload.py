@@ -26,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from attackers import WatchedServer
 
 from membrane_client import Client
+from membrane_client.errors import MembraneError
 
 _SCENE = """model = "membrane-forced"
 evaluator = "exact"
@@ -37,12 +38,18 @@ ny = 20
 """
 
 
-def _poll(address: str, stop: threading.Event, log: list[tuple[float, float, int]]) -> None:
+def _poll(
+    address: str, stop: threading.Event, log: list[tuple[float, float, int]], errors: list[str]
+) -> None:
     with Client(address, timeout=5.0) as client:
         step = 0
         while not stop.is_set():
             sent = time.perf_counter()
-            frame = client.query((step % 10_001) * 1e-4)
+            try:
+                frame = client.query((step % 10_001) * 1e-4)
+            except MembraneError as exc:
+                errors.append(f"{type(exc).__name__}: {exc}")
+                return
             log.append((sent, time.perf_counter() - sent, frame.z.size))
             step += 1
             time.sleep(0.001)
@@ -52,7 +59,8 @@ def one_reload(server: WatchedServer, scene: Path, nx: int) -> str:
     """Reload the scene to an nx x 20 lattice under a polling client; one line of figures."""
     stop = threading.Event()
     log: list[tuple[float, float, int]] = []
-    poller = threading.Thread(target=_poll, args=(server.address, stop, log), daemon=True)
+    errors: list[str] = []
+    poller = threading.Thread(target=_poll, args=(server.address, stop, log, errors), daemon=True)
     poller.start()
     time.sleep(0.5)
     scene.write_text(_SCENE.format(nx=nx))
@@ -65,12 +73,16 @@ def one_reload(server: WatchedServer, scene: Path, nx: int) -> str:
     time.sleep(0.3)
     stop.set()
     poller.join(10)
+    if poller.is_alive() or errors:
+        raise RuntimeError(f"the polling client failed: {errors or 'still waiting after 10 s'}")
     during = np.array([seconds for sent, seconds, _ in log if signalled <= sent <= swapped]) * 1e3
     sizes = {size for _, _, size in log[-10:]}
+    slowest = max((seconds, sent) for sent, seconds, _ in log if signalled <= sent <= swapped)
+    where = f"slowest at {slowest[1] - signalled:.2f} s into the build"
     return (
         f"to {nx} x 20: built in {swapped - signalled:.2f} s; {during.size} replies meanwhile, "
         f"p50 {np.percentile(during, 50):.2f} ms, p99 {np.percentile(during, 99):.2f} ms, "
-        f"max {during.max():.2f} ms, {int((during > 50).sum())} over 50 ms; "
+        f"max {during.max():.2f} ms ({where}), {int((during > 50).sum())} over 50 ms; "
         f"frames now {sorted(sizes)} points"
     )
 

@@ -467,3 +467,28 @@ def _raw_bytes(address: str, message: dict[str, Any]) -> bytes:
         socket.send(encode(message))
         data: bytes = socket.recv()
         return data
+
+
+def test_a_spinning_server_answers_like_a_sleeping_one() -> None:
+    """``spin`` changes how the loop waits, never what it answers."""
+    with (
+        Server(["rope"], bind="tcp://127.0.0.1:*", spin=0.002) as spinning,
+        Server(["rope"], bind="tcp://127.0.0.1:*") as sleeping,
+        Client(spinning.address, timeout=5.0) as a,
+        Client(sleeping.address, timeout=5.0) as b,
+    ):
+        for k in range(0, 101, 7):
+            assert a.query(k * 0.01).z.tobytes() == b.query(k * 0.01).z.tobytes()
+            time.sleep(0.003)  # past the spin: the loop blocks, then wakes for the next
+
+
+@pytest.mark.parametrize("spin", [-1e-6, 0.2, math.nan])
+def test_spin_out_of_range_is_refused(spin: float) -> None:
+    with pytest.raises(ValueError, match=r"spin must be between 0 and 0\.1 s"):
+        Server(["rope"], bind="tcp://127.0.0.1:*", spin=spin)
+
+
+@pytest.mark.parametrize("value", ["-1", "200000", "nan"])
+def test_cli_spin_out_of_range_exits_2(value: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert membrane_main(["serve", "--scene", "rope", f"--spin-us={value}"]) == 2
+    assert "--spin-us must be between 0 and 100000" in capsys.readouterr().err

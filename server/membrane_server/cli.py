@@ -59,6 +59,14 @@ def add_serve(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
         "(default 1 MiB; docs/ROBUSTNESS.md)",
     )
     parser.add_argument(
+        "--spin-us",
+        type=float,
+        default=0.0,
+        metavar="US",
+        help="after each reply, poll without sleeping for this long (up to 100000): faster "
+        "replies at haptic rates, for a core while clients are active (default 0)",
+    )
+    parser.add_argument(
         "--daemon",
         action="store_true",
         help="detach and run in the background; returns once the server answers",
@@ -87,6 +95,8 @@ def _run_serve(args: argparse.Namespace) -> int:
         raise UsageError(f"--threads must be >= 1, got {args.threads}")
     if args.peer_budget is not None and args.peer_budget < 1:
         raise UsageError(f"--peer-budget must be a positive byte count, got {args.peer_budget}")
+    if not 0.0 <= args.spin_us <= 100_000.0:
+        raise UsageError(f"--spin-us must be between 0 and 100000, got {args.spin_us:g}")
     if (args.pidfile or args.logfile) and not args.daemon:
         raise UsageError("--pidfile and --logfile go with --daemon")
     if (args.curve_secret is None) != (args.curve_clients is None):
@@ -180,6 +190,7 @@ def _serve(
             context=context,
             socket_options=options,
             peer_budget=args.peer_budget or DEFAULT_PEER_BUDGET,
+            spin=args.spin_us / 1e6,
         )
         _warn_invisible_motion(server)
         server.install_signal_handlers()
