@@ -5,7 +5,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint wheel clean
+.PHONY: demo test test-fast lint wheel clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -26,15 +26,23 @@ $(VENV)/.dev-installed: pyproject.toml | $(BIN)/python
 demo: $(VENV)/.server-installed
 	$(BIN)/python examples/demo.py
 
+# lint-imports checks the import rules of docs/ARCHITECTURE.md ([tool.importlinter] in pyproject.toml).
 test: $(VENV)/.dev-installed
 	$(BIN)/ruff check .
 	$(BIN)/mypy
+	$(BIN)/lint-imports --no-cache
 	$(BIN)/python -m pytest -q
+
+# The fast lane (under a minute): the suite without the tests marked slow (fresh-venv installs,
+# soak, load runs, training, servers in child processes). `make test` runs them all.
+test-fast: $(VENV)/.dev-installed
+	$(BIN)/python -m pytest -q -m "not slow"
 
 lint: $(VENV)/.dev-installed
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
+	$(BIN)/lint-imports --no-cache
 
 # The wheel a simulator's Python installs (dist/membrane_tissue-VERSION-py3-none-any.whl): the
 # distribution is not on the public index, where `membrane` is another project's name.

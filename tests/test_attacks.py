@@ -114,6 +114,7 @@ def _nested_request(field_name: str, depth: int) -> bytes:
     return data
 
 
+@pytest.mark.slow
 def test_deep_nesting_in_any_field_costs_one_error_reply_never_the_server(
     watched: list[WatchedServer],
 ) -> None:
@@ -183,6 +184,7 @@ def _big_scene(tmp_path: Path) -> Path:
     return scene
 
 
+@pytest.mark.slow
 def test_peers_that_never_read_are_held_to_their_budget(
     watched: list[WatchedServer], tmp_path: Path
 ) -> None:
@@ -213,6 +215,7 @@ def test_peers_that_never_read_are_held_to_their_budget(
 # -- 6. the exact evaluator's memory ---------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_large_exact_scene_loads_within_its_memory_budget(
     watched: list[WatchedServer], tmp_path: Path
 ) -> None:
@@ -247,6 +250,7 @@ def test_a_step_count_past_the_limit_is_refused_at_load(dt: float, duration: flo
         scene_from_dict(fields)
 
 
+@pytest.mark.slow
 def test_a_reload_to_an_unservable_scene_keeps_the_server_serving(
     watched: list[WatchedServer], tmp_path: Path
 ) -> None:
@@ -277,6 +281,7 @@ def test_a_reload_to_an_unservable_scene_keeps_the_server_serving(
 # -- 5. refused session ids ------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_refused_session_ids_are_not_recorded(watched: list[WatchedServer]) -> None:
     """12,000 pings with 65,000-character sessions added 630 MB that stayed: the refused ids
     were recorded. Now nothing from a request that fails validation is kept."""
@@ -330,6 +335,7 @@ def _low_file_limit() -> None:  # runs in the server's child process, before exe
     resource.setrlimit(resource.RLIMIT_NOFILE, (128, hard))
 
 
+@pytest.mark.slow
 def test_idle_connections_past_a_low_file_limit_do_not_lock_clients_out(
     watched: list[WatchedServer],
 ) -> None:
@@ -352,6 +358,7 @@ def test_idle_connections_past_a_low_file_limit_do_not_lock_clients_out(
             connection.close()
 
 
+@pytest.mark.slow
 def test_a_flood_of_stats_and_hello_costs_little(watched: list[WatchedServer]) -> None:
     """`stats` recomputed percentiles over 100,000 latencies on every call and `hello` read the
     package metadata: a flood of either delayed a good client's queries past 50 ms."""
@@ -532,6 +539,7 @@ def _raw_keys(public_or_secret_file: Path) -> tuple[bytes, bytes | None]:
     return z85_decode(public), (z85_decode(secret) if secret is not None else None)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("attacker", ["NULL mechanism", "unlisted CURVE key"])
 def test_an_unlisted_peer_cannot_hold_frames_at_a_curve_server(
     curve_server: WatchedServer, keys: Keys, attacker: str
@@ -565,6 +573,7 @@ def test_an_unlisted_peer_cannot_hold_frames_at_a_curve_server(
     assert good.answered >= 10 and good.failures == [], (good.answered, good.failures[:3])
 
 
+@pytest.mark.slow
 def test_transport_limit_a_null_peer_holds_64_bytes_per_empty_more_frame() -> None:
     """The documented figure (docs): 2 bytes sent hold 64 bytes (one msg_t) until disconnect.
 
@@ -591,6 +600,7 @@ def test_transport_limit_a_null_peer_holds_64_bytes_per_empty_more_frame() -> No
         server.close()
 
 
+@pytest.mark.slow
 def test_a_memory_ceiling_stops_the_growth_of_a_key_holder(keys: Keys) -> None:
     """The allow-list does not stop a key holder; the ceiling does (MemoryMax= in deployment)."""
     if not sodium_available():

@@ -36,6 +36,7 @@ def _check_percentiles(values: dict[str, float]) -> None:
     assert ordered == sorted(ordered), values
 
 
+@pytest.mark.slow
 def test_open_loop_sends_on_schedule_and_reports_every_field(echo: EchoServer) -> None:
     spec = LoadSpec(mode="open", rate=400, duration=0.5, warmup=0.1, times=(0.0, 0.5))
     result = run_load(echo.address, spec, "echo")
@@ -53,6 +54,7 @@ def test_open_loop_sends_on_schedule_and_reports_every_field(echo: EchoServer) -
     assert summary["error_count"] == 0
 
 
+@pytest.mark.slow
 def test_coordinated_omission_is_corrected_around_a_stall() -> None:
     """An echo that sleeps 200 ms once: 1 naive sample is slow, ~200 corrected ones are."""
     spec = LoadSpec(mode="open", rate=1000, duration=1.0, warmup=0.2)
@@ -69,6 +71,7 @@ def test_coordinated_omission_is_corrected_around_a_stall() -> None:
     assert naive["p99"] < 100_000
 
 
+@pytest.mark.slow
 def test_requests_still_due_when_the_run_ends_are_counted_unsent() -> None:
     """A stall that outlasts the run: what fell due meanwhile was never sent, and says so."""
     spec = LoadSpec(mode="open", rate=100, duration=0.5, warmup=0.0, timeout=2.0)
@@ -81,6 +84,7 @@ def test_requests_still_due_when_the_run_ends_are_counted_unsent() -> None:
     assert result.summary()["unsent"] == 30
 
 
+@pytest.mark.slow
 def test_closed_loop_keeps_requests_in_flight_from_several_processes(echo: EchoServer) -> None:
     spec = LoadSpec(mode="closed", concurrency=3, clients=2, duration=0.5, warmup=0.1)
     assert [spec.in_flight(i) for i in range(2)] == [2, 1]
@@ -91,6 +95,7 @@ def test_closed_loop_keeps_requests_in_flight_from_several_processes(echo: EchoS
     _check_percentiles(result.percentiles())
 
 
+@pytest.mark.slow
 def test_requests_without_reply_count_as_timeouts_and_the_run_still_ends() -> None:
     spec = LoadSpec(mode="open", rate=50, duration=0.6, warmup=0.0, timeout=0.1)
     with EchoServer("tcp://127.0.0.1:1", 100, stall_at=3, stall_s=0.5) as stalled:
@@ -168,6 +173,7 @@ def test_echo_uses_the_targets_transport() -> None:
         echo_bind_address("inproc://membrane")
 
 
+@pytest.mark.slow
 def test_echo_over_ipc(tmp_path: Path) -> None:
     spec = LoadSpec(mode="closed", concurrency=1, duration=0.2, warmup=0.0)
     with EchoServer("ipc:///tmp/x.ipc", 64) as server:
@@ -184,6 +190,7 @@ def _report(echo: EchoServer) -> BenchReport:
     return BenchReport(target=target, spec=spec, server=first, baseline=second)
 
 
+@pytest.mark.slow
 def test_report_ratios_table_json_and_csv(echo: EchoServer, tmp_path: Path) -> None:
     report = _report(echo)
     ratios = report.vs_baseline()
@@ -208,6 +215,7 @@ def test_report_ratios_table_json_and_csv(echo: EchoServer, tmp_path: Path) -> N
     assert rows[1]["p99_vs_baseline"] == ""
 
 
+@pytest.mark.slow
 def test_a_report_without_baseline_has_no_ratios(echo: EchoServer) -> None:
     report = _report(echo)
     report.baseline = None
@@ -308,6 +316,7 @@ def test_probe_reads_the_scenes_time_grid(live_server: str) -> None:
     assert target.reply_bytes > 20 * 4  # 20 float32 displacements and the envelope
 
 
+@pytest.mark.slow
 def test_bench_against_a_live_server_with_baseline_produces_every_field(
     live_server: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -338,6 +347,7 @@ def test_bench_against_a_live_server_with_baseline_produces_every_field(
     assert [row["label"] for row in rows] == ["server", "echo"]
 
 
+@pytest.mark.slow
 def test_bench_closed_loop_against_a_live_server_prints_a_table(
     live_server: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -358,6 +368,7 @@ def test_bench_reports_error_replies_by_code(
     assert "unknown_scene" in err and len(err.splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_baseline_in_alternating_segments_merges_every_part(live_server: str) -> None:
     from membrane_client.bench import probe, run_bench
 
@@ -407,6 +418,7 @@ def _bench_stderr(address: str, on_terminal: bool) -> str:
     return b"".join(chunks).decode(errors="replace")
 
 
+@pytest.mark.slow
 def test_progress_bar_shows_on_a_terminal_only(live_server: str) -> None:
     assert "\r" in _bench_stderr(live_server, on_terminal=True)  # the bar, redrawn in place
     piped = _bench_stderr(live_server, on_terminal=False)

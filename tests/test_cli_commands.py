@@ -44,6 +44,7 @@ def two_scene_server(start_server: Callable[..., Server], make_scene: Callable[.
 # -- membrane serve --bind ---------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("bind", "expected"),
     [
@@ -65,6 +66,7 @@ def test_serve_bind_without_a_usable_endpoint_says_what_is_needed(bind: str, exp
 # -- membrane serve: motion too small to see ---------------------------------------------------
 
 
+@pytest.mark.slow
 def test_serve_warns_when_the_motion_will_not_show(tmp_path: Path) -> None:
     scene = tmp_path / "patch.toml"
     scene.write_text(
@@ -117,6 +119,7 @@ def test_query_of_an_unknown_scene_lists_the_hosted_ones(two_scene_server: Serve
 # -- membrane stats ----------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_stats_for_people_and_for_machines(two_scene_server: Server) -> None:
     address = two_scene_server.address
     for _ in range(3):
@@ -176,3 +179,33 @@ def test_stats_summary_wording_and_fields_it_does_not_know() -> None:
     assert summary.startswith("up 1 h 02 min, 0 requests, 0 sessions")
     assert "latency: no requests yet" in summary and "extra: 1" in summary.splitlines()
     assert not any(line.split(":")[0] in ("v", "id", "ok") for line in summary.splitlines())
+
+
+def test_verbose_shows_the_traceback_behind_a_one_line_error(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Bad input is one line; with -v the traceback comes too, so that a bug that surfaces as a
+    ValueError is not mistaken for a user's mistake."""
+    from membrane_client.commands import main
+
+    assert main(["serve", "--scene", "no-such-scene"]) == 2
+    quiet = capsys.readouterr().err
+    assert "unknown scene 'no-such-scene'" in quiet and "Traceback" not in quiet
+    assert main(["-v", "serve", "--scene", "no-such-scene"]) == 2
+    verbose = capsys.readouterr().err
+    assert "Traceback (most recent call last)" in verbose and "SceneError" in verbose
+
+
+def test_a_command_that_fails_to_load_is_reported_not_hidden(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from importlib.metadata import EntryPoint
+
+    from membrane_client import commands
+
+    broken = EntryPoint("broken", "membrane_client.no_such_module:add", commands.COMMAND_GROUP)
+    monkeypatch.setattr(commands, "entry_points", lambda group: [broken])
+    assert commands.main([]) == 2  # no command given: help, exit 2
+    err = capsys.readouterr().err
+    assert "membrane: command 'broken' cannot be loaded" in err
+    assert "no_such_module" in err

@@ -33,6 +33,7 @@ def test_string_forced_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
         assert int(data["n_modes"]) > 0 and float(data["truncation_error"]) <= 1e-10
 
 
+@pytest.mark.slow
 def test_membrane_forced_file_and_plot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out, image = tmp_path / "m.npz", tmp_path / "m.png"
     code, _, err = _run(

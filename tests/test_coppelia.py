@@ -165,6 +165,7 @@ def test_build_places_the_described_lattice_under_one_parent(
 # -- running --------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("batched", [True, False], ids=[BATCHED, PER_SPHERE])
 def test_run_moves_every_sphere_to_the_served_frame(
     standin: CoppeliaStandin, link: SimulatorLink, membrane_client: Client, batched: bool
@@ -347,6 +348,7 @@ def _exit_code(argv: list[str]) -> int:
         return int(exc.code or 0)
 
 
+@pytest.mark.slow
 def test_cli_exits_1_without_hanging_when_coppeliasim_stops_answering(
     membrane_server: Any,
 ) -> None:
@@ -421,6 +423,7 @@ def test_example_exits_1_when_no_simulator_answers(membrane_server: Any) -> None
 # -- the benchmark --------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_benchmark_script_measures_both_paths(tmp_path: Path) -> None:
     spec = importlib.util.spec_from_file_location(
         "coppelia_paths", REPO / "benchmarks" / "coppelia_paths.py"

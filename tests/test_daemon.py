@@ -41,6 +41,7 @@ def daemon_files(tmp_path: Path) -> tuple[Path, Path]:
     return tmp_path / "membrane.pid", tmp_path / "membrane.log"
 
 
+@pytest.mark.slow
 def test_daemon_lifecycle(daemon_files: tuple[Path, Path]) -> None:
     pidfile, logfile = daemon_files
     address = free_address()
@@ -72,6 +73,7 @@ def test_daemon_lifecycle(daemon_files: tuple[Path, Path]) -> None:
     assert membrane("ping", "--connect", address, "--timeout", "0.3").returncode == 1
 
 
+@pytest.mark.slow
 def test_stale_pidfile_does_not_block(daemon_files: tuple[Path, Path]) -> None:
     pidfile, _ = daemon_files
     pidfile.write_text("999999\n")  # left by a process that died without cleaning up
@@ -85,6 +87,7 @@ def test_stale_pidfile_does_not_block(daemon_files: tuple[Path, Path]) -> None:
     assert not pidfile.exists()
 
 
+@pytest.mark.slow
 def test_daemon_that_cannot_bind_reports_failure(daemon_files: tuple[Path, Path]) -> None:
     pidfile, logfile = daemon_files
     with socket.socket() as taken:

@@ -70,6 +70,7 @@ def test_spectrum_bound_holds(x0: float, k: float) -> None:
 # -- the Duhamel integrals ---------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("a", [8.9, 1.0, 2.5])
 def test_bump_response_matches_quadrature(a: float) -> None:
     """q(t) = (1/w) int_0^min(t,1) sin(w (t - s)) g(s) ds, to ~1e-12 of its peak."""
@@ -141,6 +142,7 @@ def test_membrane_forced_magnitude_and_ringing() -> None:
     assert solution.truncation_error <= 1e-10
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["string-forced", "membrane-forced"])
 def test_truncation_below_1e8_against_twice_the_modes(name: str) -> None:
     problem = make_problem(name)
@@ -155,6 +157,7 @@ def test_truncation_below_1e8_against_twice_the_modes(name: str) -> None:
     assert np.abs(u - u_ref).max() / np.abs(u_ref).max() <= default.truncation_error
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rtol", [1e-4, 1e-6])
 def test_stated_truncation_error_bounds_the_actual_one(rtol: float) -> None:
     problem = make_problem("membrane-forced")
@@ -224,6 +227,7 @@ def test_string_frames_agree() -> None:
         np.testing.assert_allclose(frame(time), solution.grid(x, [time])[:, 0], atol=1e-18)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "overrides",
     [{"C": "0.1"}, {"C": "100"}, {"x0": "0.995"}, {"x0": "0.005"}, {"a": "1"}, {"k": "1e5"}],
@@ -236,6 +240,7 @@ def test_extreme_parameters_stay_finite_and_honest(overrides: dict[str, str]) ->
     assert math.isfinite(solution.truncation_error) and solution.truncation_error > 0
 
 
+@pytest.mark.slow
 def test_membrane_extremes_stay_finite() -> None:
     for overrides in ({"C": "0.1"}, {"C": "100"}, {"x0": "0.99", "y0": "0.02"}):
         solution = exact_solution(make_problem("membrane-forced", overrides), rtol=1e-6)

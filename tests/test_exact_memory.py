@@ -100,6 +100,7 @@ ATTACKS: dict[str, dict[str, Any]] = {
 }  # fmt: skip
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", list(ATTACKS))
 def test_the_attacks_build_within_the_scene_budget(case: str) -> None:
     report = _build_in_child(**ATTACKS[case])
@@ -117,6 +118,7 @@ def test_the_attacks_build_within_the_scene_budget(case: str) -> None:
     assert report["peak"] <= info["memory_bytes"] + SLACK
 
 
+@pytest.mark.slow
 def test_scattered_points_over_budget_are_refused_with_the_figure() -> None:
     """65,536 points off any grid, 1,039 per-frame modes: a dense basis needs 545 MB, and
     recomputing it would take 136 million sines a frame. A one-line SceneError, not a crash."""
@@ -130,6 +132,7 @@ def test_scattered_points_over_budget_are_refused_with_the_figure() -> None:
     assert report["peak"] <= DEFAULT_TABLE_MAX_BYTES + SLACK
 
 
+@pytest.mark.slow
 def test_a_series_over_budget_is_refused_before_its_table_is_built() -> None:
     """The corner force's Duhamel table is 128 MiB: refused under a 64 MiB budget, naming it."""
     report = _build_in_child(
@@ -144,6 +147,7 @@ def test_a_series_over_budget_is_refused_before_its_table_is_built() -> None:
     assert report["peak"] <= 64 * MiB + SLACK  # refused before the table, not after
 
 
+@pytest.mark.slow
 def test_the_solver_bounds_its_own_temporaries() -> None:
     """A fast, sharp force (c = 100, k = 1e5): the first pass alone used to ask for a 4.6 GiB
     table. Now the series is built within the default budget, and a small budget refuses the
@@ -159,6 +163,7 @@ def test_the_solver_bounds_its_own_temporaries() -> None:
         exact_solution(make_problem("membrane-forced", CORNER), max_bytes=16 * MiB)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("problem", "overrides"),
     [("membrane-forced", {}), ("membrane-forced", CORNER), ("string-forced", {"C": "1e-4"})],
@@ -190,6 +195,7 @@ def _grid(*counts: int) -> np.ndarray:
     return np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")], axis=1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("problem", "overrides", "counts"),
     [

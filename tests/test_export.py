@@ -32,6 +32,7 @@ def _relative(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(a - b) / np.linalg.norm(b))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("problem", "arch"),
     [("string-forced", TINY), ("membrane-forced", TINY), ("string-plucked", TINY),
@@ -74,6 +75,7 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> Manifest:
     return export_checkpoint(root / "run" / "checkpoint.pt", root / "model" / "tiny.onnx")
 
 
+@pytest.mark.slow
 def test_manifest_round_trip(exported: Manifest) -> None:
     assert exported.path is not None
     again = Manifest.read(exported.path)
@@ -89,6 +91,7 @@ def test_manifest_round_trip(exported: Manifest) -> None:
     assert exported.architecture["name"] == "spinn"
 
 
+@pytest.mark.slow
 def test_manifest_error_is_what_evaluate_measures(exported: Manifest) -> None:
     report = evaluate_model(exported)
     assert report.relative_l2 == exported.error["relative_l2"]
@@ -96,6 +99,7 @@ def test_manifest_error_is_what_evaluate_measures(exported: Manifest) -> None:
     assert exported.error["grid"] == [101, 101]
 
 
+@pytest.mark.slow
 def test_altered_graph_is_refused(exported: Manifest, tmp_path: Path) -> None:
     assert exported.path is not None
     copy = tmp_path / "copy"
@@ -108,6 +112,7 @@ def test_altered_graph_is_refused(exported: Manifest, tmp_path: Path) -> None:
         Manifest.read(copy / "tiny.json").verify("time")
 
 
+@pytest.mark.slow
 def test_cli_evaluate_prints_the_manifest_figure(
     exported: Manifest, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:

@@ -263,6 +263,7 @@ def test_exact_solver_states_an_honest_truncation_error(problem: str, c: str) ->
     assert actual <= 1.05 * coarse.truncation_error + fine.truncation_error
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("problem", "overrides"),
     [

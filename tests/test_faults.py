@@ -138,6 +138,7 @@ def _port(address: str) -> str:
 # -- kill and restart -------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_killed_server_times_out_the_client_which_recovers_and_exits_promptly(
     servers: list[ServeProcess], tmp_path: Path
 ) -> None:
@@ -178,6 +179,7 @@ def test_killed_server_times_out_the_client_which_recovers_and_exits_promptly(
     assert exit_seconds < 5.0, f"the client took {exit_seconds:.1f} s to exit"
 
 
+@pytest.mark.slow
 def test_a_client_exits_at_once_after_a_timeout_with_a_request_still_queued() -> None:
     """Nobody listens: the request waits in the socket's queue; exit must still be immediate."""
     script = textwrap.dedent(
@@ -212,6 +214,7 @@ def test_a_client_exits_at_once_after_a_timeout_with_a_request_still_queued() ->
 # -- SIGTERM: finish the reply in flight --------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_sigterm_delivers_every_reply_it_answered_then_exits(
     servers: list[ServeProcess], tmp_path: Path
 ) -> None:

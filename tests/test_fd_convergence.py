@@ -43,6 +43,7 @@ def test_forced_string_second_order() -> None:
     assert errors[-1] < 1e-4
 
 
+@pytest.mark.slow
 def test_forced_membrane_second_order() -> None:
     errors = _errors("membrane-forced", [32, 64, 128])
     orders = _orders(errors)

@@ -345,6 +345,7 @@ def _dealer(address: str) -> zmq.Socket[bytes]:
 # -- the codec --------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @fuzz(300)
 @given(message=requests(), data=st.data())
 def test_every_strict_prefix_of_a_message_is_refused(message: dict[str, Any], data: Any) -> None:
@@ -370,6 +371,7 @@ def test_random_bytes_decode_to_a_map_or_a_protocol_error(data: bytes) -> None:
 # -- the dispatcher (no sockets: many inputs) -----------------------------------------------------
 
 
+@pytest.mark.slow
 @fuzz(500)
 @given(body=bodies)
 def test_dispatcher_answers_everything_by_the_spec(
@@ -391,6 +393,7 @@ def _dispatcher(scenes: dict[str, ServedScene]) -> Dispatcher:
     return _DISPATCHERS[key]
 
 
+@pytest.mark.slow
 def test_the_fuzzer_reaches_every_outcome(scenes: dict[str, ServedScene]) -> None:
     """Guards the generator: each error code and success is produced, so none goes untested."""
     seen: Counter[str] = Counter()
@@ -409,6 +412,7 @@ def test_the_fuzzer_reaches_every_outcome(scenes: dict[str, ServedScene]) -> Non
 # -- a live server ----------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @fuzz(150)
 @given(body=bodies)
 def test_live_server_answers_garbage_while_a_good_client_polls(
@@ -444,6 +448,7 @@ def good(live_server: Server, scenes: dict[str, ServedScene]) -> Iterator[GoodCl
     assert client.queries > 0
 
 
+@pytest.mark.slow
 def test_the_good_client_was_served_throughout(good: GoodClient, live_server: Server) -> None:
     """Runs after the live fuzz (same module fixture): the poller never saw a wrong frame."""
     deadline = time.monotonic() + 5
@@ -455,6 +460,7 @@ def test_the_good_client_was_served_throughout(good: GoodClient, live_server: Se
     GOOD_QUERIES["ok"] = good.queries
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("size", "answered"),
     [(MAX_REQUEST_BYTES - 1, True), (MAX_REQUEST_BYTES, True), (MAX_REQUEST_BYTES + 1, False),
@@ -493,6 +499,7 @@ def _ping_of_size(size: int) -> bytes:
     raise AssertionError(f"cannot build a {size}-byte request")
 
 
+@pytest.mark.slow
 def test_multi_frame_garbage_near_and_over_the_size_limit(
     live_server: Server, good: GoodClient
 ) -> None:

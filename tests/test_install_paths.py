@@ -159,12 +159,14 @@ def test_compose_example_serves_a_scene_from_the_mounted_folder() -> None:
     assert words[words.index("--bind") + 1] == "tcp://0.0.0.0:5555"  # reachable through the port
 
 
+@pytest.mark.slow
 def test_server_install_has_no_torch(server_venv: Path) -> None:
     result = run([str(server_venv / "python"), "-c", "import torch"])
     assert result.returncode != 0
     assert "No module named 'torch'" in result.stderr
 
 
+@pytest.mark.slow
 def test_server_install_serves_a_query(server_venv: Path, server_address: str) -> None:
     membrane = str(server_venv / "membrane")
     result = run([membrane, "query", "--connect", server_address, "--t", "0.5", "--json"])

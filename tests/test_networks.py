@@ -51,6 +51,7 @@ CASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("arch", "problem_name"), CASES)
 def test_space_jet_matches_autograd(arch: str, problem_name: str) -> None:
     problem = make_problem(problem_name)

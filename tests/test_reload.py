@@ -84,6 +84,7 @@ class Poller:
                 time.sleep(0.001)
 
 
+@pytest.mark.slow
 def test_a_reload_to_a_new_lattice_under_a_polling_client(
     scene_server: tuple[WatchedServer, Path],
 ) -> None:

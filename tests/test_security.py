@@ -119,6 +119,7 @@ def test_a_client_with_the_right_keys_is_answered(curve_server: Server, keys: Ke
         assert client.ping() > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("who", ["no keys", "unknown client key", "wrong server key"])
 def test_a_client_without_the_right_keys_gets_nothing(
     curve_server: Server, keys: Keys, who: str
@@ -160,6 +161,7 @@ def test_several_keyed_clients_at_once(curve_server: Server, keys: Keys) -> None
     assert failures == []
 
 
+@pytest.mark.slow
 def test_cli_serve_and_ping_with_curve_keys(keys: Keys) -> None:
     serve = subprocess.Popen(
         [*MEMBRANE, "serve", "--scene", "rope", "--bind", "tcp://127.0.0.1:*",
@@ -194,6 +196,7 @@ def test_cli_serve_and_ping_with_curve_keys(keys: Keys) -> None:
     assert serve.returncode == 0
 
 
+@pytest.mark.slow
 def test_daemon_with_curve_keys_and_a_scene_given_as_relative_paths(
     keys: Keys, tmp_path: Path
 ) -> None:
@@ -252,6 +255,7 @@ def test_client_key_folders_that_cannot_be_used_are_named(keys: Keys, tmp_path: 
     assert CurveAuthenticator(keys.allowed).allowed == 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
@@ -430,6 +434,7 @@ def test_serve_refuses_an_oversized_table_in_one_line(tmp_path: Path) -> None:
     assert "more than the limit 65536" in result.stderr
 
 
+@pytest.mark.slow
 def test_an_oversized_reply_times_the_client_out_instead_of_filling_its_memory() -> None:
     """A rogue server sending more than MAX_REPLY_BYTES: the client drops it and times out."""
     rogue: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.ROUTER)

@@ -316,6 +316,7 @@ def test_bind_failure_is_an_os_error(membrane_server: Server, make_scene: Any) -
 # -- shutdown ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_stop_finishes_and_closes(make_scene: Any) -> None:
     scene = make_scene("membrane-forced", "exact", name="s", lattice={"nx": 3, "ny": 3})
     server = Server([scene], bind="tcp://127.0.0.1:*")
@@ -405,6 +406,7 @@ def test_cli_ping_without_server_exits_1(capsys: pytest.CaptureFixture[str]) -> 
     assert "no reply" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_serve_subprocess_answers_and_stops_on_sigterm() -> None:
     command = [sys.executable, "-m", "membrane_client.commands", "serve", "--scene", "rope"]
     process = subprocess.Popen(
@@ -441,6 +443,7 @@ def test_serve_with_a_bad_scene_exits_2() -> None:
     assert "unknown scene 'nowhere'" in result.stderr
 
 
+@pytest.mark.slow
 def test_serve_on_a_busy_port_exits_2(membrane_server: Server) -> None:
     result = subprocess.run(
         [sys.executable, "-m", "membrane_client.commands", "serve", "--scene", "rope",

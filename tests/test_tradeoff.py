@@ -60,6 +60,7 @@ def test_unknown_scene_is_a_usage_error(
     assert "trampoline" in err and len(err.splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_measures_models_knobs_and_keeps_cases_that_cannot_be_served(
     test_models: dict[str, TestModel],
 ) -> None:
@@ -93,6 +94,7 @@ def test_measures_models_knobs_and_keeps_cases_that_cannot_be_served(
     assert info["memory_bytes"] in (101 * 25 * 4, 101 * 25 * 8)  # float32 or float64 frames
 
 
+@pytest.mark.slow
 def test_quick_run_writes_the_table_and_the_plot(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:

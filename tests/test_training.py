@@ -38,6 +38,7 @@ def _tiny(problem: str, **changes: Any) -> TrainConfig:
     return recipe(problem, **base)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "problem", ["string-forced", "membrane-forced", "string-plucked", "string-plucked-smooth"]
 )
@@ -52,6 +53,7 @@ def test_short_run_loss_falls(problem: str) -> None:
     assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
 
 
+@pytest.mark.slow
 def test_published_configuration_trains_with_initial_terms() -> None:
     config = recipe(
         "string-forced", "stmsffn", iterations=30,
@@ -200,6 +202,7 @@ def test_lbfgs_grid_is_redrawn_on_schedule_or_kept(
     assert sum(drawn) == grids
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("problem", ["string-forced", "string-plucked", "membrane-forced"])
 def test_projected_residual_is_the_projection_of_the_pointwise_residual(problem: str) -> None:
     # By parts on a uniform grid against the pointwise residual projected on a fine one

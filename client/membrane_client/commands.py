@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import traceback
 from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
 from typing import NoReturn
@@ -62,8 +63,11 @@ def _build_parser() -> argparse.ArgumentParser:
     for entry in sorted(entry_points(group=COMMAND_GROUP), key=lambda e: e.name):
         try:
             add: Callable[[argparse._SubParsersAction[OneLineParser]], None] = entry.load()
-        except (ImportError, AttributeError) as exc:  # a package of ours not installed
-            logging.getLogger(__name__).debug("command %s unavailable: %s", entry.name, exc)
+        except (ImportError, AttributeError) as exc:
+            # A registration imports the core dependencies only, so this is a broken install or
+            # a bug, never a missing extra: say so rather than drop the command from --help.
+            print(f"membrane: command '{entry.name}' cannot be loaded: {_one_line(exc)}",
+                  file=sys.stderr)  # fmt: skip
             continue
         add(subparsers)
     return parser
@@ -92,14 +96,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(handler(args) or 0)
     except ModuleNotFoundError as exc:
+        _traceback_if_verbose(args.verbose)
         print(f"membrane {args.command}: {_missing_extra_message(exc)}", file=sys.stderr)
         return 2
     except (UsageError, ValueError, OSError) as exc:
+        _traceback_if_verbose(args.verbose)  # -v: a bug posing as bad input shows where
         print(f"membrane {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"membrane {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def _traceback_if_verbose(verbose: int) -> None:
+    if verbose:
+        traceback.print_exc(file=sys.stderr)
 
 
 def _one_line(exc: BaseException) -> str:

@@ -36,7 +36,6 @@ from membrane_server.scene import DEFAULT_TABLE_MAX_BYTES, Scene, SceneError
 from membrane_server.source import ModelSource, resolve_source
 
 __all__ = [
-    "EVALUATORS",
     "EXACT_WORKING_FLOOR_BYTES",
     "Evaluator",
     "ExactEvaluator",
@@ -355,9 +354,6 @@ class ExactEvaluator(Evaluator):
         }
 
 
-EVALUATORS: dict[str, type[Evaluator]] = {
-    cls.kind: cls for cls in (NetworkEvaluator, SeparableEvaluator, TableEvaluator, ExactEvaluator)
-}
 
 
 def build_evaluator(

@@ -555,8 +555,3 @@ def pareto_front(measurements: Sequence[Measurement]) -> list[Measurement]:
             front.append(m)
             best_error = m.relative_l2
     return front
-
-
-def default_output_paths() -> tuple[Path, Path]:
-    """Where the table and the plot go by default (relative to the working directory)."""
-    return Path("docs/TRADEOFF.md"), Path("docs/tradeoff.png")
