@@ -374,6 +374,11 @@ def test_grid_needs_one_axis_per_dimension() -> None:
         exact_solution(make_problem("string-forced"), rtol=0.0)
 
 
-def test_problem_types() -> None:
-    assert isinstance(make_problem("string-forced"), StringForced)
-    assert isinstance(make_problem("membrane-forced"), MembraneForced)
+def test_problem_names_give_the_studys_problems() -> None:
+    """The names mean the study's parameters (seed facts): C = 10 and the force at x = 0.8 on
+    the string, C = 5 and the force at (0.8, 0.5) on the membrane, unit domains, t in [0, 1]."""
+    string = make_problem("string-forced")
+    membrane = make_problem("membrane-forced")
+    assert isinstance(string, StringForced) and isinstance(membrane, MembraneForced)
+    assert (string.c, string.x0, string.t_end) == (10.0, 0.8, 1.0)
+    assert (membrane.c, membrane.x0, membrane.y0, membrane.t_end) == (5.0, 0.8, 0.5, 1.0)

@@ -361,14 +361,37 @@ def test_the_unsafe_pattern_catches_what_it_should() -> None:
     assert not UNSAFE.search("session.run(outputs)  # model.evaluate(...) is fine")
 
 
-def test_server_loads_only_onnx_json_and_toml() -> None:
-    """The model formats the server opens: ONNX graphs (protobuf), JSON manifests, TOML scenes."""
-    source = (REPO / "server/membrane_server/runtime.py").read_text()
-    assert "ort.InferenceSession(" in source
-    manifest = (REPO / "models/membrane_models/manifest.py").read_text()
-    assert "json.loads(" in manifest
-    scene = (REPO / "server/membrane_server/scene.py").read_text()
-    assert "tomllib.loads(" in scene
+def test_server_loads_only_onnx_json_and_toml(tmp_path: Path) -> None:
+    """The files a server opens to load a scene and its model, recorded by an audit hook in a
+    fresh interpreter: ONNX graphs (protobuf), JSON manifests, TOML scenes, nothing else of
+    ours (no pickle, no npz, no checkpoint)."""
+    scene = tmp_path / "skin.toml"
+    scene.write_text(
+        'model = "membrane-forced"\nevaluator = "separable"\ndt = 0.01\nduration = 1.0\n'
+        "[lattice]\nnx = 4\nny = 4\n"
+    )
+    script = textwrap.dedent(
+        f"""
+        import sys
+        from membrane_server.dispatch import ServedScene
+        from membrane_server.scene import load_scene
+        opened = []
+        sys.addaudithook(lambda event, args: opened.append(str(args[0]))
+                         if event == "open" and isinstance(args[0], str) else None)
+        ServedScene.load(load_scene({str(scene)!r}))
+        print("\\n".join(opened))
+        """
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+    ours = (str(REPO), str(tmp_path))
+    opened = {Path(line) for line in result.stdout.splitlines() if line.startswith(ours)}
+    code = {".py", ".pyc", ".so"}  # lazily imported modules of ours, not data
+    data = {path for path in opened if path.suffix not in code}
+    assert {path.suffix for path in data} == {".onnx", ".json", ".toml"}, sorted(data)
+    assert scene in data
 
 
 # -- limits -----------------------------------------------------------------------------------
