@@ -29,6 +29,7 @@ import pytest
 import zmq
 import zmq.auth
 from attackers import GoodClient, MiB, WatchedServer, silent_dealers
+from reporting import print_past_capture
 from zmq.utils.z85 import decode as z85_decode
 from zmtp_attack import curve_more_flood, null_more_flood, sodium_available
 
@@ -51,12 +52,8 @@ MEASURED: list[str] = []
 @pytest.fixture(scope="module", autouse=True)
 def _report_measured(request: pytest.FixtureRequest) -> Iterator[None]:
     yield
-    reporter = request.config.pluginmanager.getplugin("terminalreporter")
-    capture = request.config.pluginmanager.getplugin("capturemanager")
-    if reporter is None or capture is None or not MEASURED:
-        return
-    with capture.global_and_fixture_disabled():  # past pytest's output capture
-        reporter.write_line("\nattacks: " + "; ".join(MEASURED))
+    if MEASURED:
+        print_past_capture(request, "\nattacks: " + "; ".join(MEASURED))
 
 
 @pytest.fixture

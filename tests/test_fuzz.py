@@ -26,6 +26,7 @@ import pytest
 import zmq
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from reporting import print_past_capture
 
 from membrane_client import Client
 from membrane_client.errors import ProtocolError
@@ -273,16 +274,13 @@ def _check_frame(message: dict[str, Any], reply: dict[str, Any], served: ServedS
 def report_tally(request: pytest.FixtureRequest) -> Iterator[None]:
     """Print how many inputs each fuzz test tried, once the module is done."""
     yield
-    reporter = request.config.pluginmanager.getplugin("terminalreporter")
-    capture = request.config.pluginmanager.getplugin("capturemanager")
-    if reporter is None or capture is None or not TALLY:
+    if not TALLY:
         return
     counts = ", ".join(f"{name} {count}" for name, count in sorted(TALLY.items()))
     line = f"\nfuzz inputs tried: {counts} (total {sum(TALLY.values())})"
     if GOOD_QUERIES:
         line += f"; a good client got {GOOD_QUERIES['ok']} right frames meanwhile"
-    with capture.global_and_fixture_disabled():  # past pytest's output capture
-        reporter.write_line(line)
+    print_past_capture(request, line)
 
 
 @pytest.fixture(scope="module")
