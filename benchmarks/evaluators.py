@@ -26,9 +26,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from membrane_client.bench import BenchReport, probe, run_bench
+from membrane_bench.bench import BenchReport, probe, run_bench
+from membrane_bench.loadtest import LoadSpec
 from membrane_client.client import Client
-from membrane_client.loadtest import LoadSpec
 from membrane_models.problems import make_problem
 from membrane_models.zoo_index import list_models, resolve_model
 from membrane_server.scene import load_scene

@@ -22,9 +22,9 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from membrane_bench.bench import BenchReport, probe, run_bench
+from membrane_bench.loadtest import LoadSpec
 from membrane_client import Client
-from membrane_client.bench import BenchReport, probe, run_bench
-from membrane_client.loadtest import LoadSpec
 
 MEMBRANE = [sys.executable, "-m", "membrane_client.commands"]
 

@@ -19,8 +19,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from membrane_client.bench import probe, run_bench
-from membrane_client.loadtest import LoadSpec
+from membrane_bench.bench import probe, run_bench
+from membrane_bench.loadtest import LoadSpec
 from membrane_client.protocol import encode, request
 from membrane_server.dispatch import Answer, Dispatcher
 from membrane_server.server import Server

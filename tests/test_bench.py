@@ -16,10 +16,10 @@ from pathlib import Path
 import msgpack
 import pytest
 
-from membrane_client.bench import BenchReport, Target
+from membrane_bench.bench import BenchReport, Target
+from membrane_bench.echo import EchoError, EchoServer, echo_bind_address, echo_reply_padding
+from membrane_bench.loadtest import PERCENTILES, LoadError, LoadResult, LoadSpec, run_load
 from membrane_client.commands import main
-from membrane_client.echo import EchoError, EchoServer, echo_bind_address, echo_reply_padding
-from membrane_client.loadtest import PERCENTILES, LoadError, LoadResult, LoadSpec, run_load
 
 REPLY_BYTES = 1_700  # about a 20 x 20 float32 frame with its envelope
 
@@ -271,7 +271,7 @@ def test_no_server_is_one_line_and_exit_1(capsys: pytest.CaptureFixture[str]) ->
 def test_without_the_bench_extra_it_names_the_extra(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    for name in ("membrane_client.bench", "membrane_client.loadtest"):
+    for name in ("membrane_bench.bench", "membrane_bench.loadtest"):
         monkeypatch.delitem(sys.modules, name, raising=False)
     monkeypatch.setitem(sys.modules, "hdrh", None)  # makes `import hdrh` fail
     monkeypatch.setitem(sys.modules, "hdrh.histogram", None)
@@ -305,7 +305,7 @@ def live_server() -> Iterator[str]:
 
 
 def test_probe_reads_the_scenes_time_grid(live_server: str) -> None:
-    from membrane_client.bench import probe
+    from membrane_bench.bench import probe
 
     target = probe(live_server)
     assert target.scene == "rope-small"
@@ -370,7 +370,7 @@ def test_bench_reports_error_replies_by_code(
 
 @pytest.mark.slow
 def test_baseline_in_alternating_segments_merges_every_part(live_server: str) -> None:
-    from membrane_client.bench import probe, run_bench
+    from membrane_bench.bench import probe, run_bench
 
     spec = LoadSpec(mode="open", rate=200, duration=0.6, warmup=0.1)
     report = run_bench(probe(live_server), spec, baseline=True, segments=2)

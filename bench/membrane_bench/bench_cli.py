@@ -135,8 +135,8 @@ def add_bench(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
 
 
 def _run_bench(args: argparse.Namespace) -> int:
-    from membrane_client.bench import BenchError, probe, run_bench
-    from membrane_client.loadtest import LoadSpec
+    from membrane_bench.bench import BenchError, probe, run_bench
+    from membrane_bench.loadtest import LoadSpec
 
     if args.fixed_t is not None and args.payload != "query":
         raise ValueError("--t applies to --payload query only")

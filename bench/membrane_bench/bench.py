@@ -2,7 +2,7 @@
 
 ``probe`` asks the server what to send (the scene's time grid) and how long its replies are;
 ``run_bench`` runs the load against the server and, for a baseline, the same load from the same
-code against an echo server (``membrane_client.echo``) whose replies are as long; ``BenchReport``
+code against an echo server (``membrane_bench.echo``) whose replies are as long; ``BenchReport``
 holds both and renders them as a table, JSON or CSV rows.
 
 Every ``vs_baseline`` figure reads "how many times worse than the echo": a latency percentile is
@@ -22,10 +22,10 @@ from typing import Any
 
 import zmq
 
+from membrane_bench.echo import EchoServer
+from membrane_bench.loadtest import PERCENTILES, LoadResult, LoadSpec, ProgressHook, run_load
 from membrane_client import protocol
-from membrane_client.echo import EchoServer
 from membrane_client.errors import MembraneError
-from membrane_client.loadtest import PERCENTILES, LoadResult, LoadSpec, ProgressHook, run_load
 
 __all__ = ["BenchError", "BenchReport", "Target", "probe", "run_bench"]
 
