@@ -13,7 +13,7 @@ Run it with CoppeliaSim 4.6+ open (ZeroMQ remote API on port 23000)::
 
 Without CoppeliaSim, the stand-in plays its part::
 
-    python -m membrane_client.coppelia_standin --port 23000 &
+    python -m membrane_coppelia.coppelia_standin --port 23000 &
     python examples/coppelia_membrane.py
 """
 
@@ -26,7 +26,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
 from membrane_client import Client
-from membrane_client.coppelia import (
+from membrane_coppelia.coppelia import (
     DEFAULT_SIM_PORT,
     LatticeStyle,
     SimulatorError,

@@ -12,7 +12,7 @@ Run it with CoppeliaSim 4.6+ open (ZeroMQ remote API on port 23000)::
     python examples/coppelia_rope.py                          # serves the `rope` scene itself
     python examples/coppelia_rope.py --connect tcp://127.0.0.1:5555   # or a running server
 
-Without CoppeliaSim: ``python -m membrane_client.coppelia_standin --port 23000`` first.
+Without CoppeliaSim: ``python -m membrane_coppelia.coppelia_standin --port 23000`` first.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
-from membrane_client.coppelia import (
+from membrane_coppelia.coppelia import (
     DEFAULT_SIM_PORT,
     LatticeStyle,
     SimulatorError,

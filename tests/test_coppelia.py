@@ -21,7 +21,7 @@ pytest.importorskip("coppeliasim_zmqremoteapi_client")
 
 from membrane_client import Client, SceneInfo
 from membrane_client.commands import main as membrane_main
-from membrane_client.coppelia import (
+from membrane_coppelia.coppelia import (
     BATCHED,
     PER_SPHERE,
     LatticeStyle,
@@ -30,11 +30,11 @@ from membrane_client.coppelia import (
     SphereLattice,
     connect_simulator,
 )
-from membrane_client.coppelia_lua import BATCH_FUNCTION, BATCH_SCRIPT_FILE
-from membrane_client.coppelia_standin import CoppeliaStandin, FakeScene
+from membrane_coppelia.coppelia_lua import BATCH_FUNCTION, BATCH_SCRIPT_FILE
+from membrane_coppelia.coppelia_standin import CoppeliaStandin, FakeScene
 
 REPO = Path(__file__).resolve().parents[1]
-LUA_SCRIPT = REPO / "client" / "membrane_client" / BATCH_SCRIPT_FILE
+LUA_SCRIPT = REPO / "coppelia" / "membrane_coppelia" / BATCH_SCRIPT_FILE
 SIM_TIMEOUT = 2.0
 
 

@@ -37,10 +37,10 @@ import numpy as np
 import zmq
 
 from membrane_client.client import DEFAULT_ADDRESS, Client
-from membrane_client.coppelia_lua import BATCH_FUNCTION, BATCH_SCRIPT
 from membrane_client.errors import MembraneError, ServerError
 from membrane_client.frame import SceneInfo
 from membrane_client.protocol import ErrorCode
+from membrane_coppelia.coppelia_lua import BATCH_FUNCTION, BATCH_SCRIPT
 
 __all__ = [
     "BATCHED",

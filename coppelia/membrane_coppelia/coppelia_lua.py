@@ -15,4 +15,4 @@ __all__ = ["BATCH_FUNCTION", "BATCH_SCRIPT", "BATCH_SCRIPT_FILE"]
 
 BATCH_FUNCTION = "membraneSetPositions"
 BATCH_SCRIPT_FILE = "coppelia_batch.lua"
-BATCH_SCRIPT: str = (resources.files("membrane_client") / BATCH_SCRIPT_FILE).read_text("utf-8")
+BATCH_SCRIPT: str = (resources.files("membrane_coppelia") / BATCH_SCRIPT_FILE).read_text("utf-8")

@@ -19,12 +19,12 @@ simulation restores the positions objects had at its start; the scene keeps the 
 moment of the stop in :attr:`FakeScene.positions_at_stop` for inspection.
 
 The stand-in cannot run Lua: a script function is served by a Python implementation registered
-under its name (the lattice script's :data:`~membrane_client.coppelia_lua.BATCH_FUNCTION`), and
+under its name (the lattice script's :data:`~membrane_coppelia.coppelia_lua.BATCH_FUNCTION`), and
 only when the script's text defines a function of that name.
 
 It measures round trips and our own overhead, nothing of CoppeliaSim's own cost.
 
-Run it alone with ``python -m membrane_client.coppelia_standin --port 23000``.
+Run it alone with ``python -m membrane_coppelia.coppelia_standin --port 23000``.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ from typing import Any
 import cbor2
 import zmq
 
-from membrane_client.coppelia_lua import BATCH_FUNCTION
+from membrane_coppelia.coppelia_lua import BATCH_FUNCTION
 
 __all__ = [
     "PROTOCOL_VERSION",
@@ -661,7 +661,7 @@ class CoppeliaStandin:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the stand-in in the foreground until interrupted (SIGINT or SIGTERM)."""
     parser = argparse.ArgumentParser(
-        prog="python -m membrane_client.coppelia_standin",
+        prog="python -m membrane_coppelia.coppelia_standin",
         description="A stand-in for CoppeliaSim's ZeroMQ remote API (protocol 2), on loopback.",
     )
     parser.add_argument("--port", type=int, default=23000, help="TCP port; 0 picks a free one")

@@ -126,13 +126,13 @@ class _Progress:
 
 
 def _run_coppelia(args: argparse.Namespace) -> int:
-    from membrane_client.coppelia import (
+    from membrane_client.errors import ServerError, Timeout
+    from membrane_client.protocol import ErrorCode
+    from membrane_coppelia.coppelia import (
         LatticeStyle,
         SimulatorError,
         drive_lattice,
     )
-    from membrane_client.errors import ServerError, Timeout
-    from membrane_client.protocol import ErrorCode
 
     style = LatticeStyle(sphere_size=args.sphere_size, color=args.color)
     progress = _Progress()
