@@ -203,6 +203,15 @@ class GoodClient:
 # -- raw peers ---------------------------------------------------------------------------------
 
 
+def dealer(address: str, timeout_ms: int = 5000) -> zmq.Socket[bytes]:
+    """A raw DEALER for requests of one's own making (LINGER 0, a receive timeout)."""
+    socket: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.DEALER)
+    socket.setsockopt(zmq.LINGER, 0)
+    socket.setsockopt(zmq.RCVTIMEO, timeout_ms)
+    socket.connect(address)
+    return socket
+
+
 def silent_dealers(address: str, count: int) -> list[zmq.Socket[bytes]]:
     """``count`` DEALER connections that will never read a reply (a one-message receive queue,
     a small kernel buffer), for sending requests whose replies pile up at the server."""

@@ -24,6 +24,7 @@ import msgpack
 import numpy as np
 import pytest
 import zmq
+from attackers import dealer
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from reporting import print_past_capture
@@ -333,11 +334,7 @@ class GoodClient:
 
 
 def _dealer(address: str) -> zmq.Socket[bytes]:
-    socket: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.DEALER)
-    socket.setsockopt(zmq.LINGER, 0)
-    socket.setsockopt(zmq.RCVTIMEO, REPLY_TIMEOUT_MS)
-    socket.connect(address)
-    return socket
+    return dealer(address, REPLY_TIMEOUT_MS)
 
 
 # -- the codec --------------------------------------------------------------------------------

@@ -195,6 +195,8 @@ def test_a_reply_with_fields_encoded_once_is_byte_for_byte_the_plain_one() -> No
         assert encoded == encode(ok_reply(request_id, **fields))
         extra = encode_ok_reply(request_id, encode_fields(fields), requested_t=0.1)
         assert extra == encode(ok_reply(request_id, **fields, requested_t=0.1))
+    with_revision = encode_fields(fields).plus("revision", "2df4ef8fb9d9")
+    assert with_revision == encode_fields({**fields, "revision": "2df4ef8fb9d9"})
     many = {f"k{n}": n for n in range(20)}  # past a fixmap's 15 entries
     assert encode_ok_reply(5, encode_fields(many)) == encode(ok_reply(5, **many))
 

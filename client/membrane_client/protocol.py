@@ -167,6 +167,12 @@ class EncodedFields:
     count: int
     data: bytes
 
+    def plus(self, key: str, value: Any) -> EncodedFields:
+        """These fields and one more, after them (what ``encode_fields`` would give for the
+        fields with ``key`` added last), without encoding the others again."""
+        packer = msgpack.Packer(use_bin_type=True)
+        return EncodedFields(self.count + 1, self.data + packer.pack(key) + packer.pack(value))
+
 
 def encode_fields(fields: Mapping[str, Any]) -> EncodedFields:
     """Serialise a success reply's fields (everything but the envelope) once."""

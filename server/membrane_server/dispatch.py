@@ -97,12 +97,13 @@ class ServedScene:
         )
         self.shape = scene.lattice.shape
         description = self._describe()
+        # Encoded once: a 65,536-point lattice's describe is a megabyte of coordinates.
+        encoded = encode_fields(description)
         # The revision names this content: a reload that changes anything a client relies on
         # (lattice, placement, time grid, model) changes it, and clients see it in every reply.
-        self.revision = hashlib.sha256(encode_fields(description).data).hexdigest()[:12]
+        self.revision = hashlib.sha256(encoded.data).hexdigest()[:12]
         self._description = {**description, "revision": self.revision}
-        # Encoded once: a 65,536-point lattice's describe is a megabyte of coordinates.
-        self.encoded_description = encode_fields(self._description)
+        self.encoded_description = encoded.plus("revision", self.revision)
         self._replies = ReplyCache()
 
     @classmethod

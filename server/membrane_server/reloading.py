@@ -42,20 +42,13 @@ class SceneBuilder:
         self._build = build
         self._thread: threading.Thread | None = None
         self._result: list[ServedScene] | None = None
-        self._started = 0.0
         self._switch_interval = sys.getswitchinterval()
-
-    @property
-    def building(self) -> bool:
-        """True while a build runs (or its result waits to be taken)."""
-        return self._thread is not None
 
     def start(self) -> bool:
         """Start a build; False (and nothing started) when one is already under way."""
         if self._thread is not None:
             return False
         self._result = None
-        self._started = time.monotonic()
         self._switch_interval = sys.getswitchinterval()
         sys.setswitchinterval(min(self._switch_interval, _BUILD_SWITCH_INTERVAL))
         self._thread = threading.Thread(target=self._run, name="membrane-reload", daemon=True)
@@ -73,14 +66,21 @@ class SceneBuilder:
         result, self._result = self._result, None
         return result
 
-    def _run(self) -> None:
-        _lower_this_threads_priority()
+    def build_now(self) -> list[ServedScene] | None:
+        """Build in the calling thread: the scenes, or None when one cannot be served (logged;
+        the scenes being served stay)."""
+        started = time.monotonic()
         try:
-            self._result = self._build()
+            built = self._build()
         except Exception as exc:  # a scene that cannot be served: keep the old ones
             logger.error("reload failed, still serving the previous scenes: %s", exc)
-            return
-        logger.info("reload: new scenes built in %.2f s", time.monotonic() - self._started)
+            return None
+        logger.info("reload: new scenes built in %.2f s", time.monotonic() - started)
+        return built
+
+    def _run(self) -> None:
+        _lower_this_threads_priority()
+        self._result = self.build_now()
 
 
 def _lower_this_threads_priority() -> None:

@@ -203,12 +203,9 @@ class Server:
     def reload(self) -> None:
         """Reload the scenes now, in the calling thread (before serving, or in tests)."""
         self._reload.clear()
-        try:
-            served = _load_scenes(self._sources, self._threads)
-        except Exception as exc:
-            logger.error("reload failed, still serving the previous scenes: %s", exc)
-            return
-        self._swap_in(served)
+        served = self._builder.build_now()
+        if served is not None:
+            self._swap_in(served)
 
     def _swap_in(self, served: list[ServedScene]) -> None:
         changes = describe_changes(self.dispatcher.scenes, served)
@@ -283,12 +280,9 @@ class Server:
         socket.setsockopt(zmq.MAXMSGSIZE, MAX_REQUEST_BYTES)
         # A full queue or a vanished peer raises on send (counted) instead of a silent drop.
         socket.setsockopt(zmq.ROUTER_MANDATORY, 1)
-        queued = send_queue_limit(self.peer_budget, self._largest_reply_bytes())
-        socket.setsockopt(zmq.SNDHWM, queued)
+        self._size_send_queue(socket)
         requests = max(_MIN_QUEUED_REQUESTS, self.peer_budget // MAX_REQUEST_BYTES)
         socket.setsockopt(zmq.RCVHWM, requests)
-        logger.info("per peer: at most %d unread replies (budget %d bytes)",
-                    queued, self.peer_budget)  # fmt: skip
         for option, value in self._socket_options.items():
             socket.setsockopt(option, value)
         try:
@@ -308,9 +302,14 @@ class Server:
         if served is None:
             return
         self._swap_in(served)
-        # Connections made from now on get a queue sized for the new scenes' replies.
+        self._size_send_queue(socket)  # connections made from now on: sized for the new scenes
+
+    def _size_send_queue(self, socket: zmq.Socket[bytes]) -> None:
+        """Set the send high-water mark from the peer budget and the hosted scenes' replies."""
         queued = send_queue_limit(self.peer_budget, self._largest_reply_bytes())
         socket.setsockopt(zmq.SNDHWM, queued)
+        logger.info("per peer: at most %d unread replies (budget %d bytes)",
+                    queued, self.peer_budget)  # fmt: skip
 
     def _largest_reply_bytes(self) -> int:
         """The largest reply any hosted scene sends: its describe, or a float64 frame."""

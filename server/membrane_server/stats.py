@@ -81,20 +81,17 @@ class Stats:
         """Distinct session ids remembered."""
         return len(self._sessions)
 
-    def latency_us(self) -> dict[str, float | int]:
-        """Percentiles of the latency window, in microseconds, computed now."""
-        return self._compute_percentiles()
-
     def recent_latency_us(self) -> dict[str, float | int]:
         """``latency_us()`` computed at most once per ``percentile_interval`` (what the ``stats``
         op answers; ``age_s`` says how old the figures are)."""
         now = time.monotonic()
         if self._percentiles is None or now - self._percentiles_at >= self._percentile_interval:
-            self._percentiles = self._compute_percentiles()
+            self._percentiles = self.latency_us()
             self._percentiles_at = now
         return {**self._percentiles, "age_s": now - self._percentiles_at}
 
-    def _compute_percentiles(self) -> dict[str, float | int]:
+    def latency_us(self) -> dict[str, float | int]:
+        """Percentiles of the latency window, in microseconds, computed now."""
         count = min(self._latency_count, self._latencies.size)
         if count == 0:
             return {"count": 0, "window": int(self._latencies.size)}

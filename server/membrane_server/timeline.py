@@ -7,6 +7,7 @@ t = -1e-12 give the right step (or the right out-of-domain answer).
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
@@ -14,7 +15,6 @@ from membrane_client.protocol import Domain
 
 __all__ = ["OutOfDomain", "Sample", "Timeline"]
 
-_EPS = 2.0**-52
 # How many float64 epsilons (relative to the magnitudes involved) count as "on a step".
 _SNAP_EPSILONS = 8
 
@@ -92,7 +92,7 @@ class Timeline:
         """
         nearest = round(position)
         scale = (abs(t) + abs(self.start_offset)) / self.dt + abs(position)
-        on_step = abs(position - nearest) <= _SNAP_EPSILONS * _EPS * scale
+        on_step = abs(position - nearest) <= _SNAP_EPSILONS * sys.float_info.epsilon * scale
         return float(nearest) if on_step else position
 
     def _outside(self, t: float, before: bool) -> Sample:
