@@ -175,7 +175,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     standin = [sys.executable, "-m", "membrane_coppelia.coppelia_standin", "--port", "0"]
-    serve = [sys.executable, "-m", "membrane_client.commands", "serve", "--scene", args.scene]
+    serve = [sys.executable, "-m", "membrane_cli", "serve", "--scene", args.scene]
     serve += ["--bind", "tcp://127.0.0.1:*"]
     with (
         announced_process(standin, "coppelia stand-in listening") as sim_address,

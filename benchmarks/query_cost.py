@@ -26,7 +26,7 @@ from membrane_bench.bench import BenchReport, probe, run_bench
 from membrane_bench.loadtest import LoadSpec
 from membrane_client import Client
 
-MEMBRANE = [sys.executable, "-m", "membrane_client.commands"]
+MEMBRANE = [sys.executable, "-m", "membrane_cli"]
 
 
 def _start_server(scene: str, serve_args: Sequence[str]) -> tuple[subprocess.Popen[str], str]:

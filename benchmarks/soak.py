@@ -38,7 +38,7 @@ from membrane_client import Client
 
 logger = logging.getLogger("benchmarks.soak")
 
-MEMBRANE = [sys.executable, "-m", "membrane_client.commands"]
+MEMBRANE = [sys.executable, "-m", "membrane_cli"]
 SAMPLE_EVERY_S = 0.5
 START_TIMEOUT_S = 120.0
 

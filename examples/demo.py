@@ -36,7 +36,7 @@ STOP_TIMEOUT_S = 10.0
 def start_server(scene: str) -> tuple[subprocess.Popen[str], str]:
     """Start `membrane serve` on a free loopback port; returns the process and its address."""
     command = [
-        sys.executable, "-m", "membrane_client.commands", "serve",
+        sys.executable, "-m", "membrane_cli", "serve",
         "--scene", scene, "--bind", "tcp://127.0.0.1:*",
     ]  # fmt: skip
     process = subprocess.Popen(command, stdout=subprocess.PIPE, text=True)

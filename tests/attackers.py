@@ -23,7 +23,7 @@ from membrane_client import Client
 from membrane_client.errors import MembraneError
 from membrane_server.dispatch import ServedScene
 
-MEMBRANE = [sys.executable, "-m", "membrane_client.commands"]
+MEMBRANE = [sys.executable, "-m", "membrane_cli"]
 MiB = 1024 * 1024
 # The watchdog kills a server whose RSS passes this: no attack test needs a tenth of it.
 KILL_AT_BYTES = 1536 * MiB
@@ -172,9 +172,7 @@ class GoodClient:
         served = ServedScene.load(self.scene)
         times = [served.timeline.step_time(k) for k in range(0, served.timeline.last_step + 1)]
         expected = {t: served.query(t)["z"]["data"] for t in times}
-        self._thread = threading.Thread(
-            target=self._run, args=(served.name, expected), daemon=True
-        )
+        self._thread = threading.Thread(target=self._run, args=(served.name, expected), daemon=True)
         self._thread.start()
         return self
 

@@ -19,7 +19,7 @@ import pytest
 from membrane_bench.bench import BenchReport, Target
 from membrane_bench.echo import EchoError, EchoServer, echo_bind_address, echo_reply_padding
 from membrane_bench.loadtest import PERCENTILES, LoadError, LoadResult, LoadSpec, run_load
-from membrane_client.commands import main
+from membrane_cli.dispatcher import main
 
 REPLY_BYTES = 1_700  # about a 20 x 20 float32 frame with its envelope
 
@@ -392,7 +392,7 @@ def _bench_stderr(address: str, on_terminal: bool) -> str:
     import subprocess
     import termios
 
-    command = [sys.executable, "-m", "membrane_client.commands", "bench", "--connect", address,
+    command = [sys.executable, "-m", "membrane_cli", "bench", "--connect", address,
                "--rate", "100", "--duration", "0.4", "--warmup", "0",
                "--payload", "ping"]  # fmt: skip
     if not on_terminal:

@@ -11,13 +11,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
-from membrane_client.cli import stats_summary
+from membrane_cli.client_commands import stats_summary
 from membrane_models.problems import PROBLEMS, make_problem
 from membrane_server.server import Server
 
-MEMBRANE = [sys.executable, "-m", "membrane_client.commands"]
+MEMBRANE = [sys.executable, "-m", "membrane_cli"]
 
 
 def membrane(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
@@ -186,7 +187,7 @@ def test_verbose_shows_the_traceback_behind_a_one_line_error(
 ) -> None:
     """Bad input is one line; with -v the traceback comes too, so that a bug that surfaces as a
     ValueError is not mistaken for a user's mistake."""
-    from membrane_client.commands import main
+    from membrane_cli.dispatcher import main
 
     assert main(["serve", "--scene", "no-such-scene"]) == 2
     quiet = capsys.readouterr().err
@@ -201,11 +202,70 @@ def test_a_command_that_fails_to_load_is_reported_not_hidden(
 ) -> None:
     from importlib.metadata import EntryPoint
 
-    from membrane_client import commands
+    from membrane_cli import dispatcher
 
-    broken = EntryPoint("broken", "membrane_client.no_such_module:add", commands.COMMAND_GROUP)
-    monkeypatch.setattr(commands, "entry_points", lambda group: [broken])
-    assert commands.main([]) == 2  # no command given: help, exit 2
+    broken = EntryPoint("broken", "membrane_cli.no_such_module:add", dispatcher.COMMAND_GROUP)
+    monkeypatch.setattr(dispatcher, "entry_points", lambda group: [broken])
+    assert dispatcher.main([]) == 2  # no command given: help, exit 2
     err = capsys.readouterr().err
     assert "membrane: command 'broken' cannot be loaded" in err
     assert "no_such_module" in err
+
+
+def _add_buggy(subparsers: Any) -> None:
+    """A command with a bug: a numpy shape error, a ValueError that is nobody's bad input."""
+    parser = subparsers.add_parser("buggy")
+    parser.set_defaults(handler=lambda args: int((np.zeros(3) + np.zeros(4)).sum()))
+
+
+def _add_bad_import(subparsers: Any) -> None:
+    """A command whose handler imports a module that no extra provides."""
+
+    def handler(args: Any) -> int:
+        import membrane_server.no_such_module  # noqa: F401
+
+        return 0
+
+    subparsers.add_parser("bad-import").set_defaults(handler=handler)
+
+
+@pytest.mark.parametrize(
+    ("command", "add", "exception"),
+    [
+        ("buggy", "_add_buggy", "ValueError: operands could not be broadcast"),
+        ("bad-import", "_add_bad_import", "ModuleNotFoundError"),
+    ],
+)
+def test_a_bug_in_a_command_is_a_traceback_and_exit_1_not_bad_input(
+    command: str,
+    add: str,
+    exception: str,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from importlib.metadata import EntryPoint
+
+    from membrane_cli import dispatcher
+
+    entry = EntryPoint(command, f"{__name__}:{add}", dispatcher.COMMAND_GROUP)
+    monkeypatch.setattr(dispatcher, "entry_points", lambda group: [entry])
+    with pytest.raises(BaseException) as raised:
+        dispatcher.main([command])
+    assert exception.split(":")[0] == type(raised.value).__name__
+    # As the installed command runs it: the traceback on stderr, exit code 1, no "error:" line.
+    script = (
+        "import sys\n"
+        "from importlib.metadata import EntryPoint\n"
+        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "from membrane_cli import dispatcher\n"
+        f"entry = EntryPoint({command!r}, {f'{__name__}:{add}'!r}, dispatcher.COMMAND_GROUP)\n"
+        "dispatcher.entry_points = lambda group: [entry]\n"
+        f"sys.exit(dispatcher.main([{command!r}]))\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 1, result.stderr
+    assert "Traceback (most recent call last)" in result.stderr
+    assert exception in result.stderr
+    assert "bad input" not in result.stderr and f"membrane {command}: error" not in result.stderr

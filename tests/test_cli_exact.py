@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from membrane_client.commands import main
+from membrane_cli.dispatcher import main
 
 
 def _run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:

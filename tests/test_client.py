@@ -270,8 +270,9 @@ def test_exit_after_a_timeout_never_hangs(scripted: Any) -> None:
 
 def test_client_imports_no_server_side_libraries() -> None:
     code = (
-        "import sys, membrane_client, membrane_client.cli\n"
-        "heavy = {'onnxruntime', 'torch', 'pydantic', 'scipy', 'membrane_server'}\n"
+        "import sys, membrane_client, membrane_cli.client_commands, membrane_cli.dispatcher\n"
+        "heavy = {'onnxruntime', 'torch', 'pydantic', 'scipy', 'cbor2', 'hdrh', 'tqdm',\n"
+        "         'membrane_server', 'membrane_models'}\n"
         "print(sorted(heavy & {m.split('.')[0] for m in sys.modules}))\n"
     )
     result = subprocess.run(

@@ -19,8 +19,8 @@ import pytest
 
 pytest.importorskip("coppeliasim_zmqremoteapi_client")
 
+from membrane_cli.dispatcher import main as membrane_main
 from membrane_client import Client, SceneInfo
-from membrane_client.commands import main as membrane_main
 from membrane_coppelia.coppelia import (
     BATCHED,
     PER_SPHERE,
@@ -356,7 +356,7 @@ def test_cli_exits_1_without_hanging_when_coppeliasim_stops_answering(
         command = [
             sys.executable,
             "-m",
-            "membrane_client.commands",
+            "membrane_cli",
             "coppelia",
             "--connect",
             membrane_server.address,

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-MEMBRANE = [sys.executable, "-m", "membrane_client.commands"]
+MEMBRANE = [sys.executable, "-m", "membrane_cli"]
 
 
 def free_address() -> str:

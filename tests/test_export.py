@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from membrane_client.commands import main
+from membrane_cli.dispatcher import main
 from membrane_models.evaluate import evaluate_model, onnx_session
 from membrane_models.export import PARITY_TOLERANCE, export_checkpoint, export_model
 from membrane_models.manifest import Manifest

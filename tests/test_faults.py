@@ -32,7 +32,7 @@ from membrane_server.scene import load_scene, scene_from_dict
 if TYPE_CHECKING:
     from onnx_graphs import TestModel
 
-MEMBRANE = [sys.executable, "-m", "membrane_client.commands"]
+MEMBRANE = [sys.executable, "-m", "membrane_cli"]
 LINE_TIMEOUT_S = 60.0  # generous: a cold `membrane serve` imports scipy and onnxruntime
 
 # A simulator-like loop: query every step, report each change of state on one stdout line, exit

@@ -1,75 +1,66 @@
-"""The import contracts' module groups stay complete and consistent.
+"""The import contracts cover every package, and breaking one fails `lint-imports`.
 
 `lint-imports` (run by `make test` and `make lint`) checks the contracts in pyproject.toml's
-[tool.importlinter]. The load tester (membrane_bench) and the CoppeliaSim adapter
-(membrane_coppelia) are packages of their own, named whole in every contract; the client contract
-lists the client's own modules one by one. These tests keep the lists honest: a new module in
-membrane_client must join the client's list, and a group is never named in part.
+[tool.importlinter]; each of our import packages is the source of exactly one contract.
 """
 
 from __future__ import annotations
 
+import shutil
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
-CLIENT_DIR = ROOT / "client" / "membrane_client"
-GROUPS = ("client", "bench", "coppelia")  # contract ids whose source modules define a group
-CLIENT_GROUPS = ("client",)  # the groups made of membrane_client's own modules
+LINT_IMPORTS = Path(sys.executable).parent / "lint-imports"
 
 
-def _contracts() -> dict[str, dict[str, Any]]:
+def _config() -> dict[str, Any]:
     with (ROOT / "pyproject.toml").open("rb") as f:
-        config = tomllib.load(f)["tool"]["importlinter"]
-    return {contract["id"]: contract for contract in config["contracts"]}
+        config: dict[str, Any] = tomllib.load(f)["tool"]["importlinter"]
+    return config
 
 
-def _group(contract_id: str) -> set[str]:
-    return set(_contracts()[contract_id]["source_modules"])
+def _our_packages() -> set[str]:
+    """Every import package of the distribution: <folder>/membrane_*/__init__.py."""
+    return {path.parent.name for path in ROOT.glob("*/membrane_*/__init__.py")}
 
 
-def _client_modules() -> set[str]:
-    names = set()
-    for path in CLIENT_DIR.rglob("*.py"):
-        parts = path.relative_to(CLIENT_DIR.parent).with_suffix("").parts
-        if parts[-1] == "__init__":
-            parts = parts[:-1]
-        names.add(".".join(parts))
-    return names
+def test_every_package_is_a_root_and_the_source_of_one_contract() -> None:
+    config = _config()
+    assert set(config["root_packages"]) == _our_packages()
+    sources = [module for c in config["contracts"] for module in c["source_modules"]]
+    assert sorted(sources) == sorted(_our_packages()), "one contract per package"
 
 
-def test_every_client_module_is_in_exactly_one_group() -> None:
-    placed: dict[str, list[str]] = {}
-    for group in CLIENT_GROUPS:
-        for module in _group(group):
-            placed.setdefault(module, []).append(group)
-    twice = {module: groups for module, groups in placed.items() if len(groups) > 1}
-    assert not twice, f"modules in more than one group: {twice}"
-    missing = _client_modules() - placed.keys()
-    assert not missing, f"client modules in no import-contract group (pyproject.toml): {missing}"
-    gone = placed.keys() - _client_modules()
-    assert not gone, f"import-contract groups name modules that do not exist: {gone}"
+def test_no_package_of_ours_is_left_out_of_the_wheel() -> None:
+    with (ROOT / "pyproject.toml").open("rb") as f:
+        wheel = tomllib.load(f)["tool"]["hatch"]["build"]["targets"]["wheel"]["packages"]
+    assert {Path(entry).name for entry in wheel} == _our_packages()
 
 
-def test_a_group_is_named_whole_or_not_at_all() -> None:
-    for group in ("bench", "coppelia"):
-        members = _group(group)
-        for contract_id, contract in _contracts().items():
-            for field in ("source_modules", "forbidden_modules"):
-                named = members & set(contract[field])
-                assert not named or named == members, (
-                    f"contract {contract_id!r} {field} names part of the {group} group: "
-                    f"missing {sorted(members - named)}"
-                )
-
-
-def test_the_other_groups_are_forbidden_to_each_group() -> None:
-    contracts = _contracts()
-    for contract_id in GROUPS:
-        forbidden = set(contracts[contract_id]["forbidden_modules"])
-        for other in ("bench", "coppelia"):
-            if other != contract_id:
-                assert _group(other) <= forbidden, f"{contract_id!r} may import {other}"
-    server_forbidden = set(contracts["server"]["forbidden_modules"])
-    assert _group("bench") | _group("coppelia") <= server_forbidden
+@pytest.mark.slow
+def test_a_broken_contract_fails_lint_imports_and_is_named(tmp_path: Path) -> None:
+    if not LINT_IMPORTS.exists():
+        pytest.fail(f"lint-imports is not installed next to {sys.executable} (the dev extra)")
+    for folder in {path.parent.parent for path in ROOT.glob("*/membrane_*/__init__.py")}:
+        shutil.copytree(folder, tmp_path / folder.name, ignore=shutil.ignore_patterns("*.pyc"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path)
+    dispatch = tmp_path / "server" / "membrane_server" / "dispatch.py"
+    dispatch.write_text(dispatch.read_text() + "\nimport torch  # noqa\n")
+    paths = ":".join(str(p.parent.parent) for p in tmp_path.glob("*/membrane_*/__init__.py"))
+    result = subprocess.run(
+        [str(LINT_IMPORTS), "--no-cache"],
+        cwd=tmp_path,
+        env={"PYTHONPATH": paths, "PATH": "/usr/bin:/bin"},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode != 0, result.stdout
+    assert "server: never imports torch" in result.stdout
+    assert "membrane_server.dispatch -> torch" in result.stdout

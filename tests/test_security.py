@@ -44,7 +44,7 @@ from membrane_server.server import Server
 if TYPE_CHECKING:
     from onnx_graphs import TestModel
 
-MEMBRANE = [sys.executable, "-m", "membrane_client.commands"]
+MEMBRANE = [sys.executable, "-m", "membrane_cli"]
 REPO = Path(__file__).resolve().parents[1]
 
 

@@ -19,12 +19,12 @@ import numpy as np
 import pytest
 import zmq
 
+from membrane_cli.dispatcher import main as membrane_main
 from membrane_client import Client, ServerError, Timeout
-from membrane_client.commands import main as membrane_main
 from membrane_client.protocol import MAX_REQUEST_BYTES, decode, encode, request, unpack_array
 from membrane_models.exact import exact_solution
 from membrane_models.problems import make_problem
-from membrane_server.server import Server
+from membrane_server.server import BindError, Server
 
 EVALUATOR_KINDS = ["network", "separable", "table", "exact"]
 
@@ -307,9 +307,9 @@ def test_duplicate_scene_names_are_refused(make_scene: Any) -> None:
         Server([scene, scene], bind="tcp://127.0.0.1:*")
 
 
-def test_bind_failure_is_an_os_error(membrane_server: Server, make_scene: Any) -> None:
+def test_bind_failure_is_a_bind_error(membrane_server: Server, make_scene: Any) -> None:
     scene = make_scene("membrane-forced", "exact", name="s", lattice={"nx": 2, "ny": 2})
-    with pytest.raises(OSError, match="cannot bind"):
+    with pytest.raises(BindError, match="cannot bind"):  # a UserError: one line at the CLI
         Server([scene], bind=membrane_server.address).start()
 
 
@@ -408,7 +408,7 @@ def test_cli_ping_without_server_exits_1(capsys: pytest.CaptureFixture[str]) -> 
 
 @pytest.mark.slow
 def test_serve_subprocess_answers_and_stops_on_sigterm() -> None:
-    command = [sys.executable, "-m", "membrane_client.commands", "serve", "--scene", "rope"]
+    command = [sys.executable, "-m", "membrane_cli", "serve", "--scene", "rope"]
     process = subprocess.Popen(
         [*command, "--bind", "tcp://127.0.0.1:*"],
         stdout=subprocess.PIPE,
@@ -433,7 +433,7 @@ def test_serve_subprocess_answers_and_stops_on_sigterm() -> None:
 
 def test_serve_with_a_bad_scene_exits_2() -> None:
     result = subprocess.run(
-        [sys.executable, "-m", "membrane_client.commands", "serve", "--scene", "nowhere"],
+        [sys.executable, "-m", "membrane_cli", "serve", "--scene", "nowhere"],
         capture_output=True,
         text=True,
         timeout=60,
@@ -446,7 +446,7 @@ def test_serve_with_a_bad_scene_exits_2() -> None:
 @pytest.mark.slow
 def test_serve_on_a_busy_port_exits_2(membrane_server: Server) -> None:
     result = subprocess.run(
-        [sys.executable, "-m", "membrane_client.commands", "serve", "--scene", "rope",
+        [sys.executable, "-m", "membrane_cli", "serve", "--scene", "rope",
          "--bind", membrane_server.address],
         capture_output=True,
         text=True,

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import pytest
 
-from membrane_client.commands import main
+from membrane_cli.dispatcher import main
 from membrane_server.tradeoff import (
     LATTICES,
     Case,
@@ -51,9 +51,7 @@ def test_full_plan_covers_every_lattice_and_the_series_tolerance(
     }
 
 
-def test_unknown_scene_is_a_usage_error(
-    capsys: pytest.CaptureFixture[str], tmp_path: Path
-) -> None:
+def test_unknown_scene_is_a_usage_error(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     argv = ["tradeoff", "--scene", "trampoline", "--no-plot", "--out", str(tmp_path / "T.md")]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from membrane_errors import UserError
 from membrane_models.exact import exact_solution
 from membrane_models.problems import StringPlucked, make_problem
 from membrane_models.training import (
@@ -125,9 +126,9 @@ def test_resume_refuses_another_configuration(tmp_path: Path) -> None:
 def test_not_a_checkpoint_is_a_clear_error(tmp_path: Path) -> None:
     bad = tmp_path / "checkpoint.pt"
     bad.write_text("not a checkpoint")
-    with pytest.raises(ValueError, match="not a readable checkpoint"):
+    with pytest.raises(UserError, match="not a readable checkpoint"):
         load_checkpoint(bad)
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(UserError, match="no checkpoint at"):
         load_checkpoint(tmp_path / "missing.pt")
 
 

@@ -14,7 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from membrane_client.argtypes import bounded_float, bounded_int
+from membrane_cli.arguments import UsageError, bounded_float, bounded_int
+from membrane_cli.connection import add_connection_arguments
 
 __all__ = ["add_bench"]
 
@@ -25,7 +26,6 @@ COUNT = bounded_int(1)
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_ADDRESS = "tcp://127.0.0.1:5555"
 DEFAULT_RATE_HZ = 1000.0
 
 
@@ -44,12 +44,7 @@ def add_bench(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
             "(requests still unsent at the end)."
         ),
     )
-    parser.add_argument(
-        "--connect",
-        default=DEFAULT_ADDRESS,
-        metavar="ADDR",
-        help=f"server address (default {DEFAULT_ADDRESS})",
-    )
+    add_connection_arguments(parser, timeout=1.0, curve=False)
     parser.add_argument(
         "--scene", metavar="NAME", help="scene to query (needed when the server hosts several)"
     )
@@ -105,13 +100,6 @@ def add_bench(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
         "(default: one client period, 1000 * clients / rate ms)",
     )
     parser.add_argument(
-        "--timeout",
-        type=POSITIVE,
-        default=1.0,
-        metavar="S",
-        help="seconds before a request counts as timed out (default 1)",
-    )
-    parser.add_argument(
         "--baseline",
         action="store_true",
         help="also run the same load against an echo server, report the ratios",
@@ -139,7 +127,7 @@ def _run_bench(args: argparse.Namespace) -> int:
     from membrane_bench.loadtest import LoadSpec
 
     if args.fixed_t is not None and args.payload != "query":
-        raise ValueError("--t applies to --payload query only")
+        raise UsageError("--t applies to --payload query only")
     open_loop = args.concurrency is None
     spec = LoadSpec(
         mode="open" if open_loop else "closed",

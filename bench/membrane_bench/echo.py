@@ -28,6 +28,8 @@ from urllib.parse import urlsplit
 import msgpack
 import zmq
 
+from membrane_errors import UserError
+
 __all__ = ["EchoError", "EchoServer", "echo_bind_address", "echo_reply_padding"]
 
 logger = logging.getLogger(__name__)
@@ -37,7 +39,7 @@ _START_TIMEOUT_S = 30.0
 _LOOPBACK = ("127.0.0.1", "localhost", "::1", "[::1]")
 
 
-class EchoError(ValueError):
+class EchoError(UserError):
     """The echo server cannot be placed on this transport, or did not start."""
 
 

@@ -38,6 +38,7 @@ import zmq
 from hdrh.histogram import HdrHistogram
 
 from membrane_client import protocol
+from membrane_errors import UserError
 
 __all__ = [
     "PERCENTILES",
@@ -75,7 +76,7 @@ class _SharedInt(Protocol):
     value: int
 
 
-class LoadError(ValueError):
+class LoadError(UserError):
     """A load that cannot be run as specified, or clients that failed to start or finish."""
 
 

@@ -11,7 +11,7 @@ with Client("tcp://127.0.0.1:5555", timeout=1.0) as client:
 """
 
 from membrane_client.client import DEFAULT_ADDRESS, Client
-from membrane_client.errors import MembraneError, ProtocolError, ServerError, Timeout
+from membrane_client.errors import MembraneError, ProtocolError, ServerError, Timeout, UserError
 from membrane_client.frame import Frame, SceneInfo
 from membrane_client.protocol import PROTOCOL_VERSION, ErrorCode
 
@@ -26,4 +26,5 @@ __all__ = [
     "SceneInfo",
     "ServerError",
     "Timeout",
+    "UserError",
 ]

@@ -17,7 +17,7 @@ from typing import Any
 
 import zmq
 
-from membrane_client.errors import MembraneError, Timeout
+from membrane_client.errors import MembraneError, Timeout, UserError
 from membrane_client.frame import Frame, SceneInfo
 from membrane_client.protocol import (
     MAX_REPLY_BYTES,
@@ -51,7 +51,7 @@ class Client:
             (e.g. CurveZMQ keys), option -> value.
 
     Raises:
-        ValueError: ``address`` is not a valid ZeroMQ endpoint, or an argument is out of range.
+        UserError: ``address`` is not a valid ZeroMQ endpoint, or an argument is out of range.
     """
 
     def __init__(
@@ -66,9 +66,9 @@ class Client:
         socket_options: Mapping[int, int | bytes] | None = None,
     ) -> None:
         if timeout is not None and not timeout > 0:
-            raise ValueError(f"timeout must be > 0 seconds (or None), got {timeout}")
+            raise UserError(f"timeout must be > 0 seconds (or None), got {timeout}")
         if retries < 0:
-            raise ValueError(f"retries must be >= 0, got {retries}")
+            raise UserError(f"retries must be >= 0, got {retries}")
         self.address = address
         self.timeout = timeout
         self.retries = retries if timeout is not None else 0
@@ -215,7 +215,7 @@ class Client:
             socket.connect(self.address)
         except zmq.ZMQError as exc:
             socket.close(linger=0)
-            raise ValueError(f"cannot connect to {self.address!r}: {exc}") from None
+            raise UserError(f"cannot connect to {self.address!r}: {exc}") from None
         return socket
 
     def _discard_socket(self) -> None:

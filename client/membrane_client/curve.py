@@ -27,6 +27,8 @@ import zmq
 import zmq.auth
 from zmq.utils import z85
 
+from membrane_errors import UserError
+
 __all__ = [
     "CurveError",
     "SocketOptions",
@@ -44,7 +46,7 @@ _OWNER_ONLY = 0o600
 logger = logging.getLogger(__name__)
 
 
-class CurveError(ValueError):
+class CurveError(UserError):
     """A key file that cannot be used (the message names it and why)."""
 
 

@@ -1,12 +1,11 @@
-"""The client's exception tree: one base class, library errors converted at the boundary."""
+"""The client's exceptions, on membrane's one tree (``membrane_errors``): library errors are
+converted at the boundary, so a caller catches ``MembraneError`` and nothing else."""
 
 from __future__ import annotations
 
-__all__ = ["MembraneError", "ProtocolError", "ServerError", "Timeout"]
+from membrane_errors import MembraneError, UserError
 
-
-class MembraneError(Exception):
-    """Base class of every error the client raises."""
+__all__ = ["MembraneError", "ProtocolError", "ServerError", "Timeout", "UserError"]
 
 
 class Timeout(MembraneError):

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from membrane_client.errors import ProtocolError
+from membrane_client.errors import ProtocolError, UserError
 from membrane_client.protocol import unpack_array
 
 __all__ = ["AXES", "Frame", "SceneInfo"]
@@ -168,7 +168,7 @@ class Frame:
     def positions(self) -> np.ndarray:
         """(n, 3) world coordinates: rest position plus ``scale * z`` along the scene's axis."""
         if self.info is None:
-            raise ValueError("this frame carries no SceneInfo; positions() needs describe()")
+            raise UserError("this frame carries no SceneInfo; positions() needs describe()")
         positions = self.info.rest_positions()
         positions[:, self.info.axis_index] += self.info.scale * self.z.reshape(-1)
         return positions

@@ -16,7 +16,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
-from membrane_client.errors import ProtocolError, ServerError
+from membrane_client.errors import ProtocolError, ServerError, UserError
 
 __all__ = [
     "ARRAY_DTYPES",
@@ -248,7 +248,7 @@ def error_reply(request_id: int | None, code: ErrorCode | str, message: str) -> 
 def pack_array(array: np.ndarray, dtype: str = "<f4") -> dict[str, Any]:
     """Encode an array as ``{"dtype", "shape", "data"}`` (C order, little-endian)."""
     if dtype not in ARRAY_DTYPES:
-        raise ValueError(f"dtype must be one of {ARRAY_DTYPES}, got {dtype!r}")
+        raise UserError(f"dtype must be one of {ARRAY_DTYPES}, got {dtype!r}")
     values = np.ascontiguousarray(array, dtype=np.dtype(dtype))
     return {"dtype": dtype, "shape": [int(n) for n in values.shape], "data": values.tobytes()}
 

@@ -15,8 +15,8 @@ import logging
 import sys
 import time
 
-from membrane_client.argtypes import bounded_float, bounded_int
-from membrane_client.client import DEFAULT_ADDRESS
+from membrane_cli.arguments import bounded_float, bounded_int
+from membrane_cli.connection import add_connection_arguments
 
 __all__ = ["add_coppelia"]
 
@@ -54,9 +54,7 @@ def add_coppelia(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]
             "the 'coppelia' extra."
         ),
     )
-    parser.add_argument(
-        "--connect", default=DEFAULT_ADDRESS, help=f"membrane server (default {DEFAULT_ADDRESS})"
-    )
+    add_connection_arguments(parser, timeout=1.0, curve=False)  # the membrane server
     parser.add_argument("--scene", default=None, help="scene name, where the server hosts several")
     parser.add_argument("--sim-host", default="127.0.0.1", help="CoppeliaSim host")
     parser.add_argument(
@@ -93,12 +91,6 @@ def add_coppelia(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]
         type=POSITIVE,
         default=5.0,
         help="seconds to wait for each CoppeliaSim reply (default 5)",
-    )
-    parser.add_argument(
-        "--timeout",
-        type=POSITIVE,
-        default=1.0,
-        help="seconds to wait for each membrane server reply (default 1)",
     )
     parser.set_defaults(handler=_run_coppelia)
 

@@ -49,11 +49,11 @@ from membrane_coppelia.coppelia_lua import BATCH_FUNCTION
 __all__ = [
     "PROTOCOL_VERSION",
     "SIM_CONSTANTS",
+    "CallRefused",
     "CoppeliaStandin",
     "FakeObject",
     "FakeScene",
     "RemoteApiProtocol",
-    "SceneError",
     "main",
 ]
 
@@ -97,7 +97,7 @@ _SHAPE_INT_PARAMS = {_C["shapeintparam_static"], _C["shapeintparam_respondable"]
 _PRIMITIVES = range(_C["primitiveshape_plane"], _C["primitiveshape_capsule"] + 1)
 
 
-class SceneError(Exception):
+class CallRefused(Exception):
     """A call the fake scene refuses, as CoppeliaSim would; sent back as an ``err`` reply."""
 
 
@@ -130,9 +130,9 @@ def _vec3(value: object, what: str) -> Vec3:
         if type(x) is float and type(y) is float and type(z) is float:
             return (x, y, z)
     if not isinstance(value, list | tuple) or len(value) != 3:
-        raise SceneError(f"{what}: expected 3 numbers, got {value!r}")
+        raise CallRefused(f"{what}: expected 3 numbers, got {value!r}")
     if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value):
-        raise SceneError(f"{what}: expected 3 numbers, got {value!r}")
+        raise CallRefused(f"{what}: expected 3 numbers, got {value!r}")
     return (float(value[0]), float(value[1]), float(value[2]))
 
 
@@ -263,39 +263,39 @@ class FakeScene:
 
     def get_float_param(self, param: int) -> float:
         if param != _C["floatparam_simulation_time_step"]:
-            raise SceneError(f"unsupported float parameter {param}")
+            raise CallRefused(f"unsupported float parameter {param}")
         return self.dt
 
     def set_float_param(self, param: int, value: float) -> int:
         if param != _C["floatparam_simulation_time_step"]:
-            raise SceneError(f"unsupported float parameter {param}")
+            raise CallRefused(f"unsupported float parameter {param}")
         if self.running:
-            raise SceneError("the time step cannot change while the simulation runs")
+            raise CallRefused("the time step cannot change while the simulation runs")
         if not isinstance(value, int | float) or not value > 0.0:
-            raise SceneError(f"invalid time step {value!r}")
+            raise CallRefused(f"invalid time step {value!r}")
         self.dt = float(value)
         return 1
 
     def create_primitive_shape(self, primitive: int, sizes: list[float], options: int = 0) -> int:
         if primitive not in _PRIMITIVES:
-            raise SceneError(f"invalid primitive type {primitive!r}")
+            raise CallRefused(f"invalid primitive type {primitive!r}")
         size = _vec3(sizes, "sizes")
         if min(size) <= 0.0:
-            raise SceneError(f"sizes must be positive, got {list(size)}")
+            raise CallRefused(f"sizes must be positive, got {list(size)}")
         return self._add_object("shape", "Shape", primitive=primitive, size=size)
 
     def create_dummy(self, size: float, color: object = None) -> int:
         if not isinstance(size, int | float) or size <= 0.0:
-            raise SceneError(f"invalid dummy size {size!r}")
+            raise CallRefused(f"invalid dummy size {size!r}")
         return self._add_object("dummy", "Dummy", size=(float(size),) * 3)
 
     def create_script(self, script_type: int, text: str, options: int = 0, lang: str = "") -> int:
         if script_type not in (_C["scripttype_simulation"], _C["scripttype_customization"]):
-            raise SceneError(f"unsupported script type {script_type!r}")
+            raise CallRefused(f"unsupported script type {script_type!r}")
         if not isinstance(text, str):
-            raise SceneError("the script text must be a string")
+            raise CallRefused("the script text must be a string")
         if lang not in ("", "lua", "python"):
-            raise SceneError(f"unknown script language {lang!r}")
+            raise CallRefused(f"unknown script language {lang!r}")
         return self._add_object(
             "script",
             "Script",
@@ -312,21 +312,21 @@ class FakeScene:
 
     def call_script_function(self, name: str, handle: int, *args: Any) -> Any:
         if not isinstance(name, str) or not isinstance(handle, int):
-            raise SceneError("expected sim.callScriptFunction(functionName, scriptHandle, ...)")
+            raise CallRefused("expected sim.callScriptFunction(functionName, scriptHandle, ...)")
         script = self._get_script(handle)
         if not (script.script_enabled and script.script_initialized):
-            raise SceneError(f"script {handle} is not initialized")
+            raise CallRefused(f"script {handle} is not initialized")
         defined = re.search(rf"^\s*function\s+{re.escape(name)}\s*\(", script.script_text, re.M)
         if script.script_lang != "lua" or defined is None:
-            raise SceneError(f"function {name!r} does not exist in script {handle}")
+            raise CallRefused(f"function {name!r} does not exist in script {handle}")
         implementation = self._script_functions().get(name)
         if implementation is None:
-            raise SceneError(f"the stand-in has no Python implementation of {name!r}")
+            raise CallRefused(f"the stand-in has no Python implementation of {name!r}")
         return implementation(*args)
 
     def remove_objects(self, handles: list[int]) -> None:
         if not isinstance(handles, list):
-            raise SceneError("removeObjects expects a list of handles")
+            raise CallRefused("removeObjects expects a list of handles")
         removed = set(handles)
         for handle in removed:
             self._get(handle)
@@ -356,7 +356,7 @@ class FakeScene:
 
     def set_alias(self, handle: int, alias: str) -> None:
         if not isinstance(alias, str) or not alias:
-            raise SceneError(f"invalid alias {alias!r}")
+            raise CallRefused(f"invalid alias {alias!r}")
         self._get(handle).alias = alias
 
     def set_parent(self, handle: int, parent: int, keep_in_place: bool = True) -> None:
@@ -366,7 +366,7 @@ class FakeScene:
             ancestor = parent
             while ancestor != -1:
                 if ancestor == handle:
-                    raise SceneError("an object cannot become its own descendant")
+                    raise CallRefused("an object cannot become its own descendant")
                 ancestor = self.objects[ancestor].parent
         self._reparent(handle, parent, keep_in_place)
 
@@ -376,7 +376,7 @@ class FakeScene:
         if len(args) == 2 and isinstance(args[0], int) and isinstance(args[1], list):
             args = (args[1], args[0])
         if len(args) not in (1, 2):
-            raise SceneError("expected sim.setObjectPosition(handle, position, relativeTo)")
+            raise CallRefused("expected sim.setObjectPosition(handle, position, relativeTo)")
         position = _vec3(args[0], "position")
         relative_to = args[1] if len(args) == 2 else -1
         world = _add(self._frame_origin(handle, relative_to), position)
@@ -392,19 +392,19 @@ class FakeScene:
     ) -> None:
         shape = self._get(handle)
         if shape.kind != "shape":
-            raise SceneError(f"object {handle} is not a shape")
+            raise CallRefused(f"object {handle} is not a shape")
         shape.colors[int(component)] = _vec3(rgb, "rgbData")
 
     def set_int_param(self, handle: int, param: int, value: int) -> None:
         obj = self._get(handle)
         if param in _SHAPE_INT_PARAMS and obj.kind != "shape":
-            raise SceneError(f"parameter {param} applies to shapes only")
+            raise CallRefused(f"parameter {param} applies to shapes only")
         obj.int_params[int(param)] = int(value)
 
     def get_int_param(self, handle: int, param: int) -> int:
         obj = self._get(handle)
         if param not in obj.int_params:
-            raise SceneError(f"parameter {param} is not set on object {handle}")
+            raise CallRefused(f"parameter {param} is not set on object {handle}")
         return obj.int_params[param]
 
     # -- the lattice script's function, in Python --------------------------------------------
@@ -417,10 +417,10 @@ class FakeScene:
     ) -> int:
         """What ``membraneSetPositions`` in ``coppelia_batch.lua`` does."""
         if not isinstance(handles, list) or not isinstance(xyz, list):
-            raise SceneError(f"{BATCH_FUNCTION}: expected a list of handles and a list of floats")
+            raise CallRefused(f"{BATCH_FUNCTION}: expected a list of handles and a list of floats")
         count = len(handles)
         if len(xyz) != 3 * count:
-            raise SceneError(
+            raise CallRefused(
                 f"{BATCH_FUNCTION}: {count} handles need {3 * count} coordinates, got {len(xyz)}"
             )
         relative_to = _C["handle_world"] if frame is None else frame
@@ -453,13 +453,13 @@ class FakeScene:
 
     def _get(self, handle: object) -> FakeObject:
         if not isinstance(handle, int) or handle not in self.objects:
-            raise SceneError(f"object does not exist: {handle!r}")
+            raise CallRefused(f"object does not exist: {handle!r}")
         return self.objects[handle]
 
     def _get_script(self, handle: object) -> FakeObject:
         obj = self._get(handle)
         if obj.kind != "script":
-            raise SceneError(f"object {handle} is not a script")
+            raise CallRefused(f"object {handle} is not a script")
         return obj
 
     def _frame_origin(self, handle: int, relative_to: object) -> Vec3:
@@ -469,7 +469,7 @@ class FakeScene:
             parent = self._get(handle).parent
             return (0.0, 0.0, 0.0) if parent == -1 else self.world_position(parent)
         if not isinstance(relative_to, int):
-            raise SceneError(f"invalid relativeTo {relative_to!r}")
+            raise CallRefused(f"invalid relativeTo {relative_to!r}")
         return self.world_position(relative_to)
 
     def _reparent(self, handle: int, parent: int, keep_in_place: bool) -> None:
@@ -516,7 +516,7 @@ class RemoteApiProtocol:
             return {"func": WAIT, "args": []}
         try:
             return {"ret": _as_ret(self._call(func, args))}
-        except SceneError as exc:
+        except CallRefused as exc:
             return {"err": f"{exc} (in function '{func}')"}
         except TypeError as exc:  # wrong number of arguments
             return {"err": f"invalid arguments: {exc} (in function '{func}')"}
@@ -535,19 +535,19 @@ class RemoteApiProtocol:
             return self._info(args)
         module, _, name = func.partition(".")
         if module != "sim" or name not in self._functions:
-            raise SceneError(f"No such function: {func}")
+            raise CallRefused(f"No such function: {func}")
         if module not in self._required:
-            raise SceneError(f"module {module!r} was not required")
+            raise CallRefused(f"module {module!r} was not required")
         return self._functions[name](*args)
 
     def _require(self, args: list[Any]) -> None:
         if args != ["sim"]:
-            raise SceneError(f"module not found: {args!r} (the stand-in offers 'sim' only)")
+            raise CallRefused(f"module not found: {args!r} (the stand-in offers 'sim' only)")
         self._required.add("sim")
 
     def _info(self, args: list[Any]) -> dict[str, dict[str, Any]]:
         if args != ["sim"] or "sim" not in self._required:
-            raise SceneError(f"no such object: {args!r}")
+            raise CallRefused(f"no such object: {args!r}")
         info: dict[str, dict[str, Any]] = {name: {"func": {}} for name in self._functions}
         info["step"] = {"func": {}}
         info.update({name: {"const": value} for name, value in SIM_CONSTANTS.items()})

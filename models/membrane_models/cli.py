@@ -15,21 +15,18 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from membrane_cli.arguments import UsageError
 from membrane_models.problems import PARAMETER_HELP, PROBLEMS, make_problem
 
 if TYPE_CHECKING:
     from membrane_models.problems import Problem
 
-__all__ = ["UsageError", "add_exact", "parameters_help", "parse_assignments"]
+__all__ = ["add_exact", "parameters_help", "parse_assignments"]
 
 logger = logging.getLogger(__name__)
 
 DEFAULT_POINTS = {1: 101, 2: 41}  # per spatial axis
 DEFAULT_TIMES = 101
-
-
-class UsageError(ValueError):
-    """Bad input to a models command: the dispatcher prints it in one line, exit code 2."""
 
 
 def add_exact(subparsers: argparse._SubParsersAction) -> None:
@@ -112,9 +109,7 @@ def _run_exact(args: argparse.Namespace) -> int:
     from membrane_models.exact import exact_solution  # scipy: the `server` extra
 
     if args.problem not in PROBLEMS:
-        raise UsageError(
-            f"unknown problem {args.problem!r}; known: {', '.join(sorted(PROBLEMS))}"
-        )
+        raise UsageError(f"unknown problem {args.problem!r}; known: {', '.join(sorted(PROBLEMS))}")
     problem = make_problem(args.problem, parse_assignments(args.assignments))
     sizes = _grid_sizes(args, problem)
     if args.out.suffix != ".npz":

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from membrane_errors import MembraneError
 from membrane_models.evaluate import evaluate_model, onnx_session, standard_axes
 from membrane_models.manifest import GraphFile, Manifest, sha256_of
 from membrane_models.training import load_checkpoint, model_from_checkpoint
@@ -38,7 +39,7 @@ OPSET = 17
 PARITY_TOLERANCE = 1e-5
 
 
-class ParityError(RuntimeError):
+class ParityError(MembraneError):
     """onnxruntime's output differs from torch's by more than the tolerance."""
 
 

@@ -21,6 +21,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from membrane_errors import UserError
+
 __all__ = [
     "MANIFEST_FORMAT",
     "GraphFile",
@@ -33,7 +35,7 @@ MANIFEST_FORMAT = 1
 GRAPH_ROLES = ("full", "space", "time")
 
 
-class ManifestError(ValueError):
+class ManifestError(UserError):
     """A manifest that cannot be read, or a graph file that does not match it."""
 
 

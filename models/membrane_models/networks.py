@@ -25,6 +25,8 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
+from membrane_errors import UserError
+
 __all__ = [
     "ARCHITECTURES",
     "AxisNetwork",
@@ -247,7 +249,7 @@ def _fourier(in_dim: int, spec: dict[str, Any], generator: torch.Generator) -> F
     elif kind == "gaussian":
         b = float(spec["sigma"]) * torch.randn(in_dim, m, generator=generator, dtype=torch.float64)
     else:
-        raise ValueError(f"unknown Fourier feature kind {kind!r} (harmonic, gaussian)")
+        raise UserError(f"unknown Fourier feature kind {kind!r} (harmonic, gaussian)")
     return FourierFeatures(
         b, include_input=bool(spec.get("include_input", True)), amplitudes=amplitudes
     )
@@ -404,7 +406,7 @@ class STMsFFN(SeparableCore):
     ) -> None:
         super().__init__()
         if width % 2:
-            raise ValueError(f"STMsFFN width must be even (cos and sin halves), got {width}")
+            raise UserError(f"STMsFFN width must be even (cos and sin halves), got {width}")
         generator = torch.Generator().manual_seed(seed)
         torch.manual_seed(seed)
         self.spatial_dims = spatial_dims
@@ -507,5 +509,5 @@ def build_core(config: dict[str, Any]) -> SeparableCore:
         cls = ARCHITECTURES[name]
     except KeyError:
         known = ", ".join(sorted(ARCHITECTURES))
-        raise ValueError(f"unknown architecture {name!r}; known: {known}") from None
+        raise UserError(f"unknown architecture {name!r}; known: {known}") from None
     return cls(**params)

@@ -18,6 +18,8 @@ from typing import ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from membrane_errors import UserError
+
 __all__ = [
     "PARAMETER_HELP",
     "PROBLEMS",
@@ -33,7 +35,7 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 
-class InvalidProblem(ValueError):
+class InvalidProblem(UserError):
     """A problem name or parameter value that cannot be used."""
 
 

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from membrane_errors import UserError
 from membrane_models.problems import Problem
 
 __all__ = [
@@ -46,11 +47,11 @@ FrameFunction = Callable[[float], FloatArray]
 _DOMAIN_SLACK = 1e-12
 
 
-class InvalidQuery(ValueError):
+class InvalidQuery(UserError):
     """Points or times an exact solution cannot be evaluated at."""
 
 
-class MemoryBudgetExceeded(ValueError):
+class MemoryBudgetExceeded(UserError):
     """A solution, or its frames on a set of points, would need more memory than allowed.
 
     Raised before the memory is allocated.

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from membrane_errors import UserError
 from membrane_models.networks import build_core
 from membrane_models.problems import Problem, StringPlucked, make_problem, time_bump
 from membrane_models.transforms import TIME_BUMP_PEAK, PhysicalModel, characteristic_amplitude
@@ -214,7 +215,7 @@ def recipe(problem: str, family: str | None = None, **changes: Any) -> TrainConf
     """
     if family in (None, "spinn"):
         if problem not in RECIPES:
-            raise ValueError(f"no recipe for {problem!r}; known: {', '.join(sorted(RECIPES))}")
+            raise UserError(f"no recipe for {problem!r}; known: {', '.join(sorted(RECIPES))}")
         base: dict[str, Any] = {"problem": problem, **RECIPES[problem]}
         base["arch"] = dict(base["arch"])
     elif family == "stmsffn":
@@ -234,7 +235,7 @@ def recipe(problem: str, family: str | None = None, **changes: Any) -> TrainConf
             "dtype": "float32",
         }
     else:
-        raise ValueError(f"unknown architecture {family!r}; known: spinn, stmsffn")
+        raise UserError(f"unknown architecture {family!r}; known: spinn, stmsffn")
     base.update(changes)
     return TrainConfig(**base)
 
@@ -518,13 +519,13 @@ def _initial_terms(
 def load_checkpoint(path: Path) -> dict[str, Any]:
     """Read a checkpoint (tensors and plain data only)."""
     if not path.is_file():
-        raise FileNotFoundError(f"no checkpoint at {path}")
+        raise UserError(f"no checkpoint at {path}")
     try:
         data: dict[str, Any] = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises several types for a file that is not a checkpoint
-        raise ValueError(f"{path} is not a readable checkpoint: {exc}") from None
+        raise UserError(f"{path} is not a readable checkpoint: {exc}") from None
     if data.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path}: checkpoint format {data.get('format')!r} unsupported")
+        raise UserError(f"{path}: checkpoint format {data.get('format')!r} unsupported")
     return data
 
 
@@ -632,10 +633,10 @@ def train(
         out_dir.mkdir(parents=True, exist_ok=True)
     if resume:
         if checkpoint is None:
-            raise ValueError("resume needs an output directory")
+            raise UserError("resume needs an output directory")
         data = load_checkpoint(checkpoint)
         if data["config"] != dataclasses.asdict(config):
-            raise ValueError(f"{checkpoint} was trained with another configuration")
+            raise UserError(f"{checkpoint} was trained with another configuration")
         model.load_state_dict(data["model"])
         adam.load_state_dict(data["adam"])
         if data.get("lbfgs"):

@@ -14,7 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from membrane_models.cli import UsageError, parse_assignments
+from membrane_cli.arguments import UsageError
+from membrane_models.cli import parse_assignments
 
 __all__ = ["add_evaluate", "add_export", "add_train", "train_command"]
 
@@ -45,12 +46,19 @@ def add_train(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     parser.add_argument(
-        "--set", dest="sets", action="append", default=[], metavar="NAME=VALUE",
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
         help="override a problem parameter (repeatable), e.g. --set c=8",
     )
     parser.add_argument("--resume", action="store_true", help="continue OUT/checkpoint.pt")
     parser.add_argument(
-        "--monitor-every", type=int, default=0, metavar="N",
+        "--monitor-every",
+        type=int,
+        default=0,
+        metavar="N",
         help="log the error against the exact solution every N iterations (0: never)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

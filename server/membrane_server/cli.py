@@ -12,6 +12,8 @@ import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+from membrane_client.client import DEFAULT_ADDRESS as DEFAULT_BIND
+
 if TYPE_CHECKING:  # annotations only: importing these at run time is the handler's job
     import zmq
 
@@ -21,8 +23,6 @@ if TYPE_CHECKING:  # annotations only: importing these at run time is the handle
 __all__ = ["add_serve"]
 
 logger = logging.getLogger(__name__)
-
-DEFAULT_BIND = "tcp://127.0.0.1:5555"
 
 
 def add_serve(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -89,7 +89,7 @@ def add_serve(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
 
 
 def _run_serve(args: argparse.Namespace) -> int:
-    from membrane_client.commands import UsageError
+    from membrane_cli.arguments import UsageError
 
     if args.threads < 1:
         raise UsageError(f"--threads must be >= 1, got {args.threads}")
@@ -115,7 +115,7 @@ def _check_endpoint(bind: str) -> None:
 
     The usual slip is a bare host:port, which needs its transport: tcp://127.0.0.1:5555.
     """
-    from membrane_client.commands import UsageError
+    from membrane_cli.arguments import UsageError
 
     transport, sep, rest = bind.partition("://")
     if not sep:
@@ -248,7 +248,7 @@ def _secure(
 
 
 def _serve_detached(scenes: list[str], args: argparse.Namespace) -> int:
-    from membrane_client.commands import UsageError
+    from membrane_cli.arguments import UsageError
     from membrane_server.daemon import AlreadyRunning, run_detached
     from membrane_server.scene import load_scene
 

@@ -19,12 +19,14 @@ from pathlib import Path
 from types import TracebackType
 from typing import IO
 
+from membrane_errors import UserError
+
 __all__ = ["AlreadyRunning", "PidFile", "run_detached"]
 
 log = logging.getLogger(__name__)
 
 
-class AlreadyRunning(RuntimeError):
+class AlreadyRunning(UserError):
     """Another live process holds the pidfile."""
 
 

@@ -29,6 +29,7 @@ from pydantic import (
 )
 
 from membrane_client.protocol import MAX_LATTICE_POINTS
+from membrane_errors import UserError
 from membrane_models.problems import PROBLEMS, make_problem
 
 __all__ = [
@@ -60,7 +61,7 @@ _NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$"
 _NAME_RULE = "letters, digits and _.- (a letter or digit first), at most 64 characters"
 
 
-class SceneError(ValueError):
+class SceneError(UserError):
     """A scene that cannot be read, validated or served."""
 
 

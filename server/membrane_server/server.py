@@ -29,7 +29,9 @@ from types import FrameType, TracebackType
 
 import zmq
 
+from membrane_client.client import DEFAULT_ADDRESS
 from membrane_client.protocol import MAX_REQUEST_BYTES, ErrorCode, encode, error_reply
+from membrane_errors import UserError
 from membrane_server.dispatch import Answer, Dispatcher, ServedScene
 from membrane_server.reloading import SceneBuilder, describe_changes
 from membrane_server.scene import Scene, load_scene
@@ -39,14 +41,19 @@ __all__ = [
     "DEFAULT_BIND",
     "DEFAULT_PEER_BUDGET",
     "SHUTDOWN_LINGER_MS",
+    "BindError",
     "Server",
     "raise_open_file_limit",
     "send_queue_limit",
 ]
 
-DEFAULT_BIND = "tcp://127.0.0.1:5555"
+DEFAULT_BIND = DEFAULT_ADDRESS  # where clients look by default
 
 logger = logging.getLogger(__name__)
+
+
+class BindError(UserError):
+    """The server cannot listen where it was told (address in use, no such interface, ...)."""
 
 # How long the loop waits for a request before it looks at the stop flag again.
 _POLL_MS = 50
@@ -152,7 +159,7 @@ class Server:
         self._thread.start()
         if not self._bound.wait(_START_TIMEOUT_S):
             self.stop()
-            raise OSError(f"the server did not bind {self.bind} within {_START_TIMEOUT_S} s")
+            raise BindError(f"the server did not bind {self.bind} within {_START_TIMEOUT_S} s")
         if self._start_error is not None:
             self._thread.join()
             self._thread = None
@@ -289,7 +296,7 @@ class Server:
             socket.bind(self.bind)
         except zmq.ZMQError as exc:
             socket.close(linger=0)
-            raise OSError(f"cannot bind {self.bind}: {exc}") from None
+            raise BindError(f"cannot bind {self.bind}: {exc}") from None
         endpoint = socket.getsockopt(zmq.LAST_ENDPOINT)
         self._address = endpoint.decode() if isinstance(endpoint, bytes) else str(endpoint)
         logger.info("serving %s on %s", ", ".join(self.scene_names), self._address)

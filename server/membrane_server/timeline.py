@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
 from membrane_client.protocol import Domain
+from membrane_errors import UserError
 
 __all__ = ["OutOfDomain", "Sample", "Timeline"]
 
@@ -19,7 +20,7 @@ __all__ = ["OutOfDomain", "Sample", "Timeline"]
 _SNAP_EPSILONS = 8
 
 
-class OutOfDomain(ValueError):
+class OutOfDomain(UserError):
     """A time outside the scene's domain under the ``error`` policy."""
 
 

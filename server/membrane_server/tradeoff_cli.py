@@ -11,7 +11,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from membrane_client.argtypes import bounded_int
+from membrane_cli.arguments import bounded_int
 
 __all__ = ["add_tradeoff"]
 

@@ -1,7 +1,10 @@
-"""Argument types for the command line: numbers checked where argparse reads them.
+"""What every subcommand checks its arguments with: ``UsageError`` and bounded number types.
 
 Each factory returns a converter for ``add_argument(type=...)``; a bad value becomes argparse's
-one-line usage error (exit code 2).
+one-line usage error (exit code 2). Checks argparse cannot express (flags that go together, a
+file's suffix) raise ``UsageError``, which the dispatcher reports the same way.
+
+Imports nothing of ours but ``membrane_errors``: every package's commands may use it.
 """
 
 from __future__ import annotations
@@ -10,7 +13,13 @@ import argparse
 import math
 from collections.abc import Callable
 
-__all__ = ["bounded_float", "bounded_int"]
+from membrane_errors import UserError
+
+__all__ = ["UsageError", "bounded_float", "bounded_int"]
+
+
+class UsageError(UserError):
+    """Bad input at the command line: reported in one line, exit code 2."""
 
 
 def bounded_float(

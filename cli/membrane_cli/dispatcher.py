@@ -6,7 +6,13 @@ function must import with the core dependencies alone, so that a client-only ins
 every command. Heavy imports happen inside the handler: when one is missing the dispatcher says, in
 one line, which extra to install.
 
-Exit codes: 0 success, 1 failure of the job itself (as each command documents), 2 bad input.
+Exit codes follow the exception tree of ``membrane_errors``:
+
+- 0: success.
+- 2: bad input: a ``UserError`` (one line), a file the command could not open (one line naming
+  it), a missing extra (one line naming the extra to install).
+- 1: the job failed: another ``MembraneError`` (one line), or a bug: any other exception, whose
+  traceback is printed. ``-v`` prints the traceback of every failure.
 """
 
 from __future__ import annotations
@@ -18,6 +24,9 @@ import traceback
 from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
 from typing import NoReturn
+
+from membrane_cli.arguments import UsageError
+from membrane_errors import MembraneError, UserError
 
 __all__ = ["DISTRIBUTION", "EXTRA_FOR_MODULE", "OneLineParser", "UsageError", "main"]
 
@@ -40,10 +49,6 @@ EXTRA_FOR_MODULE: dict[str, str] = {
 }
 
 
-class UsageError(ValueError):
-    """Bad input at the command line: reported in one line, exit code 2."""
-
-
 class OneLineParser(argparse.ArgumentParser):
     """An ArgumentParser whose errors are one line on stderr and exit code 2."""
 
@@ -56,14 +61,20 @@ def _build_parser() -> argparse.ArgumentParser:
         prog="membrane",
         description="Real-time soft-tissue engine: physics-informed networks served over ZeroMQ.",
     )
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv)")
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="count",
+        default=0,
+        help="more logging (-vv), and the traceback of any failure",
+    )
     subparsers = parser.add_subparsers(
         title="commands", dest="command", metavar="COMMAND", parser_class=OneLineParser
     )
     for entry in sorted(entry_points(group=COMMAND_GROUP), key=lambda e: e.name):
         try:
             add: Callable[[argparse._SubParsersAction[OneLineParser]], None] = entry.load()
-        except (ImportError, AttributeError) as exc:
+        except Exception as exc:
             # A registration imports the core dependencies only, so this is a broken install or
             # a bug, never a missing extra: say so rather than drop the command from --help.
             print(f"membrane: command '{entry.name}' cannot be loaded: {_one_line(exc)}",
@@ -73,14 +84,14 @@ def _build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _extra_for(exc: ModuleNotFoundError) -> str | None:
+    return EXTRA_FOR_MODULE.get((exc.name or "").split(".")[0])
+
+
 def _missing_extra_message(exc: ModuleNotFoundError) -> str:
     top = (exc.name or "").split(".")[0]
-    extra = EXTRA_FOR_MODULE.get(top)
-    if extra is None:
-        return f"missing module {exc.name!r}: {exc}"
-    return (
-        f"needs the '{extra}' extra: pip install '{DISTRIBUTION}[{extra}]' ({top} is missing)"
-    )
+    extra = _extra_for(exc)
+    return f"needs the '{extra}' extra: pip install '{DISTRIBUTION}[{extra}]' ({top} is missing)"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -96,16 +107,30 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(handler(args) or 0)
     except ModuleNotFoundError as exc:
+        if _extra_for(exc) is None:
+            raise  # not an extra's module: a broken install or a bug, with its traceback
         _traceback_if_verbose(args.verbose)
         print(f"membrane {args.command}: {_missing_extra_message(exc)}", file=sys.stderr)
         return 2
-    except (UsageError, ValueError, OSError) as exc:
-        _traceback_if_verbose(args.verbose)  # -v: a bug posing as bad input shows where
-        print(f"membrane {args.command}: error: {_one_line(exc)}", file=sys.stderr)
-        return 2
+    except UserError as exc:
+        return _one_line_failure(args, exc, 2, "error: ")
+    except MembraneError as exc:
+        return _one_line_failure(args, exc, 1)
+    except OSError as exc:
+        if exc.filename is None:
+            raise  # not about a file the user named: a bug or the system's failure
+        return _one_line_failure(args, exc, 2, "error: ")
     except KeyboardInterrupt:
         print(f"membrane {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def _one_line_failure(
+    args: argparse.Namespace, exc: BaseException, code: int, prefix: str = ""
+) -> int:
+    _traceback_if_verbose(args.verbose)
+    print(f"membrane {args.command}: {prefix}{_one_line(exc)}", file=sys.stderr)
+    return code
 
 
 def _traceback_if_verbose(verbose: int) -> None:

@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from membrane_client.client import DEFAULT_ADDRESS, Client
-from membrane_client.curve import SocketOptions, client_socket_options
-from membrane_client.errors import MembraneError, ServerError
+from membrane_cli.connection import add_connection_arguments, connect
+from membrane_client.client import Client
+from membrane_client.errors import MembraneError, ServerError, UserError
 from membrane_client.frame import Frame
 from membrane_client.protocol import ErrorCode
 
@@ -41,7 +41,7 @@ def add_query(subparsers: Subparsers) -> None:
         help="ask a server for one frame",
         description="Query the frame served for simulation time T and print it.",
     )
-    _add_connection_arguments(parser)
+    add_connection_arguments(parser)
     parser.add_argument("--scene", help="scene name (needed when the server hosts several)")
     parser.add_argument("--t", type=float, required=True, metavar="T", help="time in seconds")
     parser.add_argument("--json", action="store_true", help="print the whole frame as JSON")
@@ -58,7 +58,7 @@ def add_ping(subparsers: Subparsers) -> None:
         help="check that a server answers (exit 0) or not (exit 1)",
         description="Send one ping; exit 0 when the server answers, 1 otherwise.",
     )
-    _add_connection_arguments(parser)
+    add_connection_arguments(parser)
     parser.set_defaults(handler=_run_ping)
 
 
@@ -73,40 +73,14 @@ def add_stats(subparsers: Subparsers) -> None:
             "answers, 1 otherwise."
         ),
     )
-    _add_connection_arguments(parser)
+    add_connection_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print the reply as JSON")
     parser.set_defaults(handler=_run_stats)
 
 
-def _add_connection_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--connect",
-        default=DEFAULT_ADDRESS,
-        metavar="ADDR",
-        help=f"server endpoint (default {DEFAULT_ADDRESS})",
-    )
-    parser.add_argument(
-        "--timeout", type=float, default=2.0, metavar="S", help="seconds to wait (default 2)"
-    )
-    parser.add_argument(
-        "--curve-server-key",
-        metavar="FILE",
-        help="CurveZMQ: the server's public .key file (with --curve-secret)",
-    )
-    parser.add_argument(
-        "--curve-secret",
-        metavar="FILE",
-        help="CurveZMQ: this client's .key_secret file (with --curve-server-key)",
-    )
-
-
 def _run_query(args: argparse.Namespace) -> int:
-    _check_timeout(args.timeout)
-    options = _curve_options(args)
     try:
-        with Client(
-            args.connect, timeout=args.timeout, scene=args.scene, socket_options=options
-        ) as client:
+        with connect(args, scene=args.scene) as client:
             try:
                 frame = client.query(args.t, dtype="<f8" if args.float64 else "<f4")
             except ServerError as exc:
@@ -114,6 +88,8 @@ def _run_query(args: argparse.Namespace) -> int:
                     raise
                 print(f"membrane query: {_scene_hint(client, args.scene)}", file=sys.stderr)
                 return 2
+    except UserError:
+        raise  # bad input (an address, a key file): the dispatcher's one line, exit 2
     except MembraneError as exc:
         return _report_failure("query", exc)
     print(json.dumps(frame_to_json(frame)) if args.json else frame_summary(frame))
@@ -133,12 +109,12 @@ def _scene_hint(client: Client, scene: str | None) -> str:
 
 
 def _run_ping(args: argparse.Namespace) -> int:
-    _check_timeout(args.timeout)
-    options = _curve_options(args)
     try:
-        with Client(args.connect, timeout=args.timeout, socket_options=options) as client:
+        with connect(args) as client:
             seconds = client.ping()
             hello = client.hello()
+    except UserError:
+        raise  # bad input (an address, a key file): the dispatcher's one line, exit 2
     except MembraneError as exc:
         print(f"membrane ping: {args.connect}: {_one_line(exc)}", file=sys.stderr)
         return 1
@@ -151,11 +127,11 @@ def _run_ping(args: argparse.Namespace) -> int:
 
 
 def _run_stats(args: argparse.Namespace) -> int:
-    _check_timeout(args.timeout)
-    options = _curve_options(args)
     try:
-        with Client(args.connect, timeout=args.timeout, socket_options=options) as client:
+        with connect(args) as client:
             stats = client.stats()
+    except UserError:
+        raise  # bad input (an address, a key file): the dispatcher's one line, exit 2
     except MembraneError as exc:
         return _report_failure("stats", exc)
     print(json.dumps(stats, indent=2, sort_keys=True) if args.json else stats_summary(stats))
@@ -248,24 +224,6 @@ def frame_summary(frame: Frame) -> str:
             f"mean z = {float(z.mean()):.4g}"
         )
     return "\n".join(lines)
-
-
-def _check_timeout(timeout: float) -> None:
-    from membrane_client.commands import UsageError  # the dispatcher's own error type
-
-    if not timeout > 0:
-        raise UsageError(f"--timeout must be > 0 seconds, got {timeout}")
-
-
-def _curve_options(args: argparse.Namespace) -> SocketOptions | None:
-    """CurveZMQ socket options from --curve-server-key/--curve-secret (None without them)."""
-    from membrane_client.commands import UsageError
-
-    if (args.curve_server_key is None) != (args.curve_secret is None):
-        raise UsageError("--curve-server-key and --curve-secret go together")
-    if args.curve_server_key is None:
-        return None
-    return client_socket_options(args.curve_server_key, args.curve_secret)  # CurveError: exit 2
 
 
 def _report_failure(command: str, exc: MembraneError) -> int:

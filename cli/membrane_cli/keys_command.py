@@ -24,12 +24,8 @@ def add_keys(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def _run_keys(args: argparse.Namespace) -> int:
-    from membrane_client.commands import UsageError
-    from membrane_client.curve import CurveError, create_keypair
+    from membrane_client.curve import create_keypair
 
-    try:
-        public, secret = create_keypair(args.directory, args.name)
-    except CurveError as exc:
-        raise UsageError(str(exc)) from None
+    public, secret = create_keypair(args.directory, args.name)  # CurveError: a UserError, exit 2
     print(f"wrote {public} (public) and {secret} (secret, mode 0600)")
     return 0
