@@ -19,7 +19,7 @@ import uuid
 
 import numpy as np
 
-from membrane_client.protocol import encode, request
+from membrane_client.protocol import Request
 from membrane_server.server import Server
 
 OPS = ("query", "describe", "hello", "stats", "ping")
@@ -28,8 +28,10 @@ OPS = ("query", "describe", "hello", "stats", "ping")
 def _requests(op: str, steps: int) -> list[bytes]:
     session = uuid.uuid4().hex
     if op == "query":
-        return [encode(request(op, k, t=(k % steps) * 0.01, session=session)) for k in range(1000)]
-    return [encode(request(op, k, session=session)) for k in range(1000)]
+        return [
+            Request(op, k, t=(k % steps) * 0.01, session=session).to_wire() for k in range(1000)
+        ]
+    return [Request(op, k, session=session).to_wire() for k in range(1000)]
 
 
 def _answer(server: Server, payload: bytes) -> None:

@@ -21,7 +21,7 @@ import numpy as np
 
 from membrane_bench.bench import probe, run_bench
 from membrane_bench.loadtest import LoadSpec
-from membrane_client.protocol import encode, request
+from membrane_client.protocol import Request
 from membrane_server.dispatch import Answer, Dispatcher
 from membrane_server.server import Server
 from membrane_server.tradeoff import Case, build_case, plan_cases
@@ -46,7 +46,7 @@ def _time_calls(call: Callable[[int], object], count: int, warmup: int = 200) ->
 def tight_loop(case: Case, steps: int) -> str:
     """``Dispatcher.handle`` on query messages, back to back."""
     dispatcher = Dispatcher([build_case(case)], dict)
-    messages = [encode(request("query", k, t=(k % steps) * 0.01)) for k in range(3000)]
+    messages = [Request("query", k, t=(k % steps) * 0.01).to_wire() for k in range(3000)]
     return _percentiles_us(_time_calls(lambda k: dispatcher.handle([messages[k]]), 3000))
 
 

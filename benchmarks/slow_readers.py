@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from attackers import GoodClient, MiB, WatchedServer, silent_dealers
 
 from membrane_client import Client
-from membrane_client.protocol import encode, request
+from membrane_client.protocol import Request
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -36,15 +36,17 @@ def main(argv: list[str] | None = None) -> int:
     try:
         good = GoodClient(server.address, args.scene).start()
         peers = silent_dealers(server.address, args.peers)
-        describe = encode(request("describe", 1))
+        describe = Request("describe", 1).to_wire()
         for _ in range(args.requests):
             for peer in peers:
                 peer.send_multipart([b"", describe])
         time.sleep(args.settle)
         with Client(server.address, timeout=5.0) as client:
             stats = client.stats()
-        print(f"{args.peers} peers x {args.requests} describes on {args.scene}: "
-              f"{stats['requests']} answered, dropped {stats['dropped_replies']}")
+        print(
+            f"{args.peers} peers x {args.requests} describes on {args.scene}: "
+            f"{stats['requests']} answered, dropped {stats['dropped_replies']}"
+        )
         print(f"server RSS: peak +{server.growth() / MiB:.0f} MiB over {server.baseline / MiB:.0f}")
         for peer in peers:
             peer.close()

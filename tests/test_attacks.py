@@ -33,10 +33,11 @@ from reporting import print_past_capture
 from zmq.utils.z85 import decode as z85_decode
 from zmtp_attack import curve_more_flood, null_more_flood, sodium_available
 
+from membrane_cli.keys_command import create_keypair
 from membrane_client import Client
-from membrane_client.curve import client_socket_options, create_keypair, load_keypair
+from membrane_client.curve import client_socket_options, load_keypair
 from membrane_client.errors import MembraneError
-from membrane_client.protocol import decode, encode, request
+from membrane_client.protocol import Request, decode, encode
 from membrane_models.manifest import Manifest, ManifestError
 from membrane_models.zoo_index import resolve_model
 from membrane_server.scene import MAX_STEPS, SceneError, scene_from_dict
@@ -143,7 +144,7 @@ def test_version_one_must_be_the_integer_one(membrane_server_address: str) -> No
                 "code": "bad_version",
                 "message": reply["error"]["message"],  # type: ignore[index]
             }
-        assert _exchange(dealer, encode(request("ping", 4)))["ok"] is True
+        assert _exchange(dealer, Request("ping", 4).to_wire())["ok"] is True
     finally:
         dealer.close()
 
@@ -190,7 +191,7 @@ def test_peers_that_never_read_are_held_to_their_budget(
     good = GoodClient(server.address, GOOD_SCENE).start()
     peers = silent_dealers(server.address, 10)
     try:
-        describe = encode(request("describe", 1, scene="long-rope"))
+        describe = Request("describe", 1, scene="long-rope").to_wire()
         for _ in range(100):
             for peer in peers:
                 peer.send_multipart([b"", describe])
@@ -285,7 +286,7 @@ def test_refused_session_ids_are_not_recorded(watched: list[WatchedServer]) -> N
     try:
         for k in range(1500):
             session = f"{k:08d}" + "s" * 65_000
-            reply = _exchange(dealer, encode(request("ping", k, session=session)))
+            reply = _exchange(dealer, Request("ping", k, session=session).to_wire())
             assert reply["error"]["code"] == "bad_request"  # type: ignore[index]
         with Client(server.address, timeout=5.0) as client:
             assert client.stats()["sessions"] <= 2  # the good client's and this one's
@@ -361,7 +362,7 @@ def test_a_flood_of_stats_and_hello_costs_little(watched: list[WatchedServer]) -
     dealer = _dealer(server.address)
     try:
         for k in range(1000):
-            dealer.send_multipart([b"", encode(request("stats" if k % 2 else "hello", k))])
+            dealer.send_multipart([b"", Request("stats" if k % 2 else "hello", k).to_wire()])
         for _ in range(1000):
             assert decode(dealer.recv_multipart()[-1])["ok"] is True
     finally:
@@ -423,10 +424,10 @@ def test_the_serve_loop_survives_any_exception_from_one_request() -> None:
         server.dispatcher.handle = raising_once  # type: ignore[method-assign,assignment]
         dealer = _dealer(server.address)
         try:
-            reply = _exchange(dealer, encode(request("ping", 1)))
+            reply = _exchange(dealer, Request("ping", 1).to_wire())
             assert reply["ok"] is False
             assert reply["error"]["code"] == "internal_error"  # type: ignore[index]
-            assert _exchange(dealer, encode(request("ping", 2)))["ok"] is True
+            assert _exchange(dealer, Request("ping", 2).to_wire())["ok"] is True
         finally:
             dealer.close()
         assert server.stats.failures == 1

@@ -16,13 +16,21 @@ from membrane_models.manifest import ManifestError
 from membrane_models.problems import make_problem
 from membrane_server.dispatch import ServedScene
 from membrane_server.evaluators import (
+    Evaluator,
     ExactEvaluator,
     TableEvaluator,
     build_evaluator,
 )
-from membrane_server.scene import SceneError
+from membrane_server.runtime import OPTIMIZATION_LEVELS, session_options
+from membrane_server.scene import Scene, SceneError, scene_from_dict
+from membrane_server.source import ModelSource, resolve_source
 
 GRID_TIMES = [0.0, 0.01, 0.25, 0.5, 0.73, 1.0]
+
+
+def build(scene: Scene, **options: Any) -> Evaluator:
+    """The scene's evaluator, its model resolved once as ``ServedScene.load`` does."""
+    return build_evaluator(scene, resolve_source(scene), **options)
 
 
 def relative_l2(a: np.ndarray, b: np.ndarray) -> float:
@@ -71,7 +79,7 @@ def test_one_dimensional_models(test_models: dict[str, Any], make_scene: Any) ->
     model = test_models["string"]
     for kind in ("network", "separable", "table"):
         scene = make_scene(model.manifest_path, kind, lattice={"nx": 100})
-        evaluator = build_evaluator(scene)
+        evaluator = build(scene)
         assert evaluator.points.shape == (100, 1)
         reference = full_graph(model, evaluator.points, 0.5)
         assert relative_l2(evaluator.frame(0.5), reference) <= 1e-6
@@ -127,7 +135,7 @@ def test_table_over_a_full_only_model_uses_the_network(
     test_models: dict[str, Any], make_scene: Any
 ) -> None:
     model = test_models["membrane_full_only"]
-    evaluator = build_evaluator(make_scene(model.manifest_path, "table", dt=0.1))
+    evaluator = build(make_scene(model.manifest_path, "table", dt=0.1))
     assert evaluator.info()["source"] == "network"
     reference = full_graph(model, evaluator.points, 0.3)
     assert relative_l2(evaluator.frame(0.3), reference) <= 1e-6
@@ -136,13 +144,13 @@ def test_table_over_a_full_only_model_uses_the_network(
 def test_table_memory_limit_is_enforced(test_models: dict[str, Any], make_scene: Any) -> None:
     scene = make_scene(test_models["membrane"].manifest_path, "table", table_max_bytes=10_000)
     with pytest.raises(SceneError, match=r"table_max_bytes: .* 161600 bytes"):
-        build_evaluator(scene)
+        build(scene)
 
 
 def test_separable_needs_part_graphs(test_models: dict[str, Any], make_scene: Any) -> None:
     scene = make_scene(test_models["membrane_full_only"].manifest_path, "separable")
     with pytest.raises(SceneError, match="no space/time part-graphs"):
-        build_evaluator(scene)
+        build(scene)
 
 
 def test_network_refuses_durations_past_the_trained_domain(
@@ -150,7 +158,7 @@ def test_network_refuses_durations_past_the_trained_domain(
 ) -> None:
     scene = make_scene(test_models["membrane"].manifest_path, "network", duration=10.0)
     with pytest.raises(SceneError, match=r"duration: 10.0 s reaches past"):
-        build_evaluator(scene)
+        build(scene)
 
 
 def test_lattice_dimension_must_match_the_model(
@@ -158,7 +166,7 @@ def test_lattice_dimension_must_match_the_model(
 ) -> None:
     scene = make_scene(test_models["string"].manifest_path, "network")  # 20 x 20 on a string
     with pytest.raises(SceneError, match="lattice"):
-        build_evaluator(scene)
+        build(scene)
 
 
 def test_altered_graph_is_refused_at_load(
@@ -171,4 +179,56 @@ def test_altered_graph_is_refused_at_load(
         handle.write(b"\x00")
     scene = make_scene(tmp_path / "membrane-test.json", "separable")
     with pytest.raises(ManifestError, match="sha256"):
-        build_evaluator(scene)
+        build(scene)
+
+
+def test_optimisation_levels_are_onnxruntime_s_and_the_default_is_all() -> None:
+    levels = ort.GraphOptimizationLevel
+    expected = ["ORT_ENABLE_ALL", "ORT_ENABLE_EXTENDED", "ORT_ENABLE_BASIC", "ORT_DISABLE_ALL"]
+    chosen = [session_options(1, name).graph_optimization_level for name in OPTIMIZATION_LEVELS]
+    assert chosen == [getattr(levels, name) for name in expected]
+    assert session_options().graph_optimization_level == levels.ORT_ENABLE_ALL
+    with pytest.raises(ValueError, match="'fastest': expected one of all, extended"):
+        session_options(1, "fastest")
+
+
+@pytest.mark.parametrize("kind", ["network", "separable"])
+def test_graphs_at_another_optimisation_level_give_the_same_frames(
+    evaluator_scenes: dict[str, ServedScene], make_scene: Any, test_models: dict[str, Any],
+    kind: str,
+) -> None:  # fmt: skip
+    scene = make_scene(test_models["membrane"].manifest_path, kind)
+    unoptimised = build(scene, optimization="disabled", threads=2)
+    served = evaluator_scenes[kind].evaluator
+    for t in (0.25, 0.73):
+        assert relative_l2(unoptimised.frame(t), np.asarray(served.frame(t), np.float64)) <= 1e-6
+
+
+def test_exact_evaluator_with_a_tolerance_per_query() -> None:
+    scene = scene_from_dict({
+        "name": "exact", "model": "membrane-forced", "evaluator": "exact",
+        "lattice": {"nx": 10, "ny": 10}, "dt": 0.01, "duration": 1.0,
+    })  # fmt: skip
+    default = build(scene)
+    truncated = build(scene, rtol=1e-3, on_demand=True)
+    info, default_info = truncated.info(), default.info()
+    assert "rtol" not in default_info and default_info["precomputed_frames"] == 101
+    assert info["rtol"] == 1e-3 and info["precomputed_frames"] == 0
+    assert 0 < info["modes"] < default_info["modes"]
+    error = relative_l2(truncated.frame(0.5), default.frame(0.5))
+    assert 1e-6 < error < 1e-2  # a series cut at 1e-3 is wrong by about that much
+    with pytest.raises(ValueError, match="rtol"):
+        build(scene, rtol=-1.0)
+
+
+def test_a_bare_problem_is_served_as_a_table_of_its_exact_solution(make_scene: Any) -> None:
+    """No scene file says this (there a problem's name with ``table`` means its zoo model):
+    ``membrane tradeoff`` passes the bare problem as the resolved source."""
+    source = ModelSource(problem=make_problem("membrane-forced"))
+    table = build_evaluator(make_scene("membrane-forced", "table"), source, rtol=1e-6)
+    info = table.info()
+    assert (info["source"], info["frames"], info["memory_bytes"]) == ("exact", 101, 101 * 400 * 8)
+    reference = ExactEvaluator(make_problem("membrane-forced"), table.points, rtol=1e-6)
+    np.testing.assert_array_equal(table.frame(0.5), reference.frame(0.5))
+    with pytest.raises(SceneError, match="'network' needs a trained model"):
+        build_evaluator(make_scene("membrane-forced", "network"), source)

@@ -28,6 +28,7 @@ from membrane_models.modal import ForcedModalSolution
 from membrane_models.problems import make_problem
 from membrane_server.evaluators import ExactEvaluator, TableEvaluator, build_evaluator
 from membrane_server.scene import DEFAULT_TABLE_MAX_BYTES, SceneError, scene_from_dict
+from membrane_server.source import resolve_source
 
 MiB = 2**20
 SLACK = 32 * MiB
@@ -44,6 +45,7 @@ _CHILD = textwrap.dedent(
     from membrane_models.problems import make_problem
     from membrane_server.evaluators import ExactEvaluator, TableEvaluator, build_evaluator
     from membrane_server.scene import SceneError, scene_from_dict
+    from membrane_server.source import resolve_source
 
     spec = json.loads(sys.argv[1])
     status = Path("/proc/self/status").read_text().splitlines()
@@ -60,10 +62,11 @@ _CHILD = textwrap.dedent(
     try:
         if spec.get("scene"):
             nx, ny = spec["lattice"]
-            evaluator = build_evaluator(scene_from_dict({
+            scene = scene_from_dict({
                 "name": "attack", "model": spec["problem"], "evaluator": "exact",
                 "lattice": {"nx": nx, "ny": ny}, "dt": 0.01, "duration": 1.0,
-            }))
+            })
+            evaluator = build_evaluator(scene, resolve_source(scene))
         else:
             budget = {"max_bytes": spec["max_bytes"]} if "max_bytes" in spec else {}
             evaluator = ExactEvaluator(problem, points, 0.01, 100, **budget)
@@ -248,7 +251,7 @@ def test_describe_reports_the_memory_used() -> None:
         {"name": "m", "model": "membrane-forced", "evaluator": "exact",
          "lattice": {"nx": 20, "ny": 20}, "dt": 0.01, "duration": 1.0}
     )  # fmt: skip
-    info = build_evaluator(scene).info()
+    info = build_evaluator(scene, resolve_source(scene)).info()
     frames = 101 * 400 * 8
     assert info["spatial_method"] == "dense"  # small: the cached basis, as before
     assert info["working_bytes"] > 400 * 1039 * 8  # the basis, the series' table
@@ -258,7 +261,7 @@ def test_describe_reports_the_memory_used() -> None:
 
 def test_a_table_of_the_exact_solution_counts_its_source() -> None:
     """Frames of 323,200 bytes fit 1 MB, but not with the series and basis that compute them
-    (a table of exact frames is built by hand, as ``membrane tradeoff`` does)."""
+    (a table of the exact solution, as ``membrane tradeoff`` serves the bare problem)."""
     problem, points = make_problem("membrane-forced"), _grid(20, 20)
     table = TableEvaluator(ExactEvaluator(problem, points), 0.01, 100, DEFAULT_TABLE_MAX_BYTES)
     info = table.info()

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from membrane_client import Client, ServerError
-from membrane_client.protocol import MAX_LATTICE_POINTS, decode, encode, request, unpack_array
+from membrane_client.protocol import MAX_LATTICE_POINTS, Request, decode, unpack_array
 from membrane_models.exact import exact_solution
 from membrane_models.problems import make_problem
 from membrane_models.zoo_index import list_models, resolve_model
@@ -341,7 +341,7 @@ def test_a_raw_query_for_the_last_representable_time(evaluator_server: Server) -
     socket.setsockopt(zmq.RCVTIMEO, 5000)
     socket.connect(evaluator_server.address)
     try:
-        socket.send(encode(request("query", 7, scene="table", t=1.7976931348623157e308)))
+        socket.send(Request("query", 7, scene="table", t=1.7976931348623157e308).to_wire())
         reply = decode(socket.recv())
     finally:
         socket.close(linger=0)

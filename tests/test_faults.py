@@ -24,7 +24,7 @@ import pytest
 import zmq
 
 from membrane_client import Client
-from membrane_client.protocol import decode, encode, request, unpack_array
+from membrane_client.protocol import Request, decode, unpack_array
 from membrane_models.manifest import ManifestError
 from membrane_server.dispatch import ServedScene
 from membrane_server.scene import load_scene, scene_from_dict
@@ -250,8 +250,8 @@ def test_sigterm_delivers_every_reply_it_answered_then_exits(
     replies = []
     try:
         for k in range(sent):  # pipelined: the server works through them one by one
-            query = request("query", k, t=0.005 + 0.01 * k, dtype="<f8")
-            socket.send_multipart([b"", encode(query)])
+            query = Request("query", k, t=0.005 + 0.01 * k, dtype="<f8")
+            socket.send_multipart([b"", query.to_wire()])
         # 2.5 ms (quiet machine) to 20 ms (loaded) per request: 7 to 60 answered, unread,
         # a backlog (<= 30 MB) that drains well within the server's shutdown linger.
         time.sleep(0.15)

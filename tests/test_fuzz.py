@@ -35,11 +35,12 @@ from membrane_client.protocol import (
     ARRAY_DTYPES,
     MAX_REQUEST_BYTES,
     MAX_SESSION_CHARS,
+    PROTOCOL_VERSION,
     ErrorCode,
     Op,
+    Request,
     decode,
     encode,
-    request,
     unpack_array,
 )
 from membrane_server.dispatch import Dispatcher, ServedScene
@@ -487,7 +488,8 @@ def _ping_of_size(size: int) -> bytes:
     """A valid ping request exactly ``size`` bytes long (padded with an unknown field)."""
     padding = size
     for _ in range(4):  # the bin header grows from 3 to 5 bytes at 64 KiB: converge on it
-        payload = encode(request("ping", 5, padding=b"\x00" * padding))
+        ping = {"v": PROTOCOL_VERSION, "id": 5, "op": "ping", "padding": b"\x00" * padding}
+        payload = encode(ping)
         if len(payload) == size:
             return payload
         padding -= len(payload) - size
@@ -507,7 +509,9 @@ def test_multi_frame_garbage_near_and_over_the_size_limit(
         assert reply["error"]["code"] == "bad_message" and reply["id"] is None
         socket.send_multipart([b"", *([b""] * 1000)])
         assert decode(socket.recv_multipart()[-1])["error"]["code"] == "bad_message"
-        socket.send_multipart([b"", encode(request("ping", 1)), b"\x00" * (MAX_REQUEST_BYTES + 1)])
+        socket.send_multipart(
+            [b"", Request("ping", 1).to_wire(), b"\x00" * (MAX_REQUEST_BYTES + 1)]
+        )
         socket.setsockopt(zmq.RCVTIMEO, 1000)
         with pytest.raises(zmq.Again):
             socket.recv_multipart()

@@ -18,13 +18,15 @@ from membrane_client.protocol import (
     PROTOCOL_VERSION,
     ErrorCode,
     Op,
+    Request,
+    RequestError,
     check_reply,
     decode,
     encode,
     error_reply,
     ok_reply,
     pack_array,
-    request,
+    peek_reply,
     unpack_array,
 )
 
@@ -131,10 +133,52 @@ def test_pack_array_refuses_other_dtypes() -> None:
         pack_array(np.zeros(2), "<i8")
 
 
-def test_request_builds_the_envelope_and_drops_none() -> None:
-    message = request(Op.QUERY, 17, t=0.25, scene=None, session="abc")
+def test_a_request_sends_only_the_fields_it_has_and_reads_back_the_same() -> None:
+    query = Request(Op.QUERY, 17, session="abc", t=0.25)
+    message = decode(query.to_wire())
     assert message == {"v": PROTOCOL_VERSION, "id": 17, "op": "query", "t": 0.25, "session": "abc"}
-    assert decode(encode(message)) == message
+    assert Request.from_wire(query.to_wire()) == query
+    float64 = Request(Op.QUERY, 18, scene="rope", t=1.0, dtype="<f8")
+    assert Request.from_wire(float64.to_wire()) == float64
+
+
+@pytest.mark.parametrize(
+    ("message", "code", "envelope"),
+    [
+        (b"\x93\x01\x02\x03", ErrorCode.BAD_MESSAGE, False),  # an array, not a map
+        ({"v": 1, "id": -1, "op": "ping"}, ErrorCode.BAD_REQUEST, False),
+        ({"v": 1.0, "id": 1, "op": "ping"}, ErrorCode.BAD_VERSION, False),
+        ({"v": 1, "id": 1, "op": "fly"}, ErrorCode.UNKNOWN_OP, False),
+        ({"v": 1, "id": 1, "op": "ping", "session": "x" * 65}, ErrorCode.BAD_REQUEST, False),
+        ({"v": 1, "id": 1, "op": "describe", "scene": 3}, ErrorCode.BAD_REQUEST, True),
+        ({"v": 1, "id": 1, "op": "query"}, ErrorCode.BAD_REQUEST, True),
+        ({"v": 1, "id": 1, "op": "query", "t": "0.5"}, ErrorCode.BAD_REQUEST, True),
+        ({"v": 1, "id": 1, "op": "query", "t": True}, ErrorCode.BAD_REQUEST, True),
+        ({"v": 1, "id": 1, "op": "query", "t": float("nan")}, ErrorCode.INVALID_TIME, True),
+        ({"v": 1, "id": 1, "op": "query", "t": 0.0, "dtype": "<i4"}, ErrorCode.BAD_REQUEST, True),
+    ],
+)
+def test_a_request_that_breaks_the_schema_is_refused_with_its_code(
+    message: bytes | dict[str, Any], code: ErrorCode, envelope: bool
+) -> None:
+    data = message if isinstance(message, bytes) else encode(message)
+    with pytest.raises(RequestError) as refused:
+        Request.from_wire(data)
+    assert refused.value.code == code
+    # The envelope (op, id, session) is known exactly when it was valid: the stats count it.
+    assert (refused.value.request is not None) == envelope
+    if envelope:
+        assert refused.value.request_id == 1
+
+
+def test_peek_reply_reads_the_envelope_alone() -> None:
+    frame = {"z": {"dtype": "<f4", "shape": [2], "data": b"\x00" * 8}}
+    assert peek_reply(encode(ok_reply(7, **frame))) == (7, None)
+    error = encode(error_reply(8, ErrorCode.OUT_OF_DOMAIN, "past the end"))
+    assert peek_reply(error) == (8, "out_of_domain")
+    assert peek_reply(encode({"ok": True, "v": 1, "id": 9})) == (9, None)  # another order
+    assert peek_reply(b"\xc1garbage") == (-1, "undecodable")
+    assert peek_reply(encode({"v": 1, "id": 3, "ok": False})) == (3, "error_without_code")
 
 
 def test_check_reply_returns_ok_replies() -> None:
@@ -187,7 +231,7 @@ def test_ops_match_the_spec() -> None:
 
 
 def test_a_reply_with_fields_encoded_once_is_byte_for_byte_the_plain_one() -> None:
-    from membrane_client.protocol import encode_fields, encode_ok_reply
+    from membrane_server.reply_encoding import encode_fields, encode_ok_reply
 
     fields = {"scene": "s", "points": pack_array(np.arange(6.0).reshape(3, 2), "<f8"), "n": 3}
     for request_id in (0, 1, 127, 128, 2**32, 2**63 - 1, None):

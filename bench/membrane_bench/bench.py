@@ -20,12 +20,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import zmq
-
 from membrane_bench.echo import EchoServer
 from membrane_bench.loadtest import PERCENTILES, LoadResult, LoadSpec, ProgressHook, run_load
-from membrane_client import protocol
-from membrane_client.errors import MembraneError
+from membrane_client.client import Client
+from membrane_client.errors import MembraneError, Timeout, UserError
+from membrane_client.protocol import Op, encode
 
 __all__ = ["BenchError", "BenchReport", "Target", "probe", "run_bench"]
 
@@ -64,39 +63,6 @@ class Target:
     evaluator: str | None
 
 
-class _Prober:
-    """A REQ socket with a timeout, for the few requests before the load starts."""
-
-    def __init__(self, address: str, timeout: float) -> None:
-        self._address = address
-        self._context = zmq.Context()
-        self._socket = self._context.socket(zmq.REQ)
-        self._socket.setsockopt(zmq.LINGER, 0)
-        self._socket.setsockopt(zmq.RCVTIMEO, max(int(timeout * 1000), 1))
-        self._socket.connect(address)
-        self._timeout = timeout
-        self._next_id = 0
-
-    def ask(self, op: str, **fields: Any) -> tuple[dict[str, Any], int]:
-        """Send one request; returns the checked reply and its length in bytes."""
-        self._next_id += 1
-        self._socket.send(protocol.encode(protocol.request(op, self._next_id, **fields)))
-        try:
-            data = self._socket.recv()
-        except zmq.Again:
-            raise BenchError(
-                f"no reply from {self._address} within {self._timeout:g} s (is a server there?)"
-            ) from None
-        try:
-            return protocol.check_reply(protocol.decode(data), self._next_id), len(data)
-        except MembraneError as exc:
-            raise BenchError(f"{op} request to {self._address} failed: {exc}") from None
-
-    def close(self) -> None:
-        self._socket.close(linger=0)
-        self._context.term()
-
-
 def probe(
     address: str,
     payload: str = "query",
@@ -109,31 +75,30 @@ def probe(
     Raises:
         BenchError: No reply within ``timeout``, or an error reply (e.g. an unknown scene).
     """
-    prober = _Prober(address, timeout)
+    op = payload
     try:
-        if payload == "ping":
-            _, size = prober.ask("ping")
-            return Target(address, None, (0.0,), size, None)
-        info, _ = prober.ask("describe", scene=scene)
-        times = (fixed_t,) if fixed_t is not None else _step_times(info)
-        reply, size = prober.ask("query", t=times[0], scene=scene)
-        evaluator = info.get("evaluator", {})
-        kind = evaluator.get("kind") if isinstance(evaluator, dict) else None
-        return Target(address, str(reply.get("scene", scene)), times, size, kind)
-    finally:
-        prober.close()
+        with Client(address, timeout=timeout, scene=scene) as client:
+            if payload == "ping":
+                return Target(address, None, (0.0,), _reply_bytes(client.request(Op.PING)), None)
+            op = Op.DESCRIBE
+            info = client.describe()
+            times = (fixed_t,) if fixed_t is not None else tuple(float(t) for t in info.times())
+            op = Op.QUERY
+            reply = client.request(Op.QUERY, scene=scene, t=times[0])
+    except Timeout:
+        raise BenchError(
+            f"no reply from {address} within {timeout:g} s (is a server there?)"
+        ) from None
+    except UserError:
+        raise  # a malformed address: bad input, not the server's failure
+    except MembraneError as exc:
+        raise BenchError(f"{op} request to {address} failed: {exc}") from None
+    return Target(address, info.name, times, _reply_bytes(reply), info.evaluator)
 
 
-def _step_times(info: dict[str, Any]) -> tuple[float, ...]:
-    """The scene's frame times start_offset + k dt, k = 0 .. steps - 1 (docs/PROTOCOL.md)."""
-    try:
-        dt, offset = float(info["dt"]), float(info.get("start_offset", 0.0))
-        steps = int(info.get("steps", round(float(info["duration"]) / dt) + 1))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise BenchError(f"describe reply lacks the time grid: {exc!r}") from None
-    if not (math.isfinite(dt) and dt > 0 and steps >= 1):
-        raise BenchError(f"describe reply has an unusable time grid (dt={dt}, steps={steps})")
-    return tuple(offset + k * dt for k in range(steps))
+def _reply_bytes(reply: dict[str, Any]) -> int:
+    """A reply's length on the wire: encoding the decoded reply again gives the same bytes."""
+    return len(encode(reply))
 
 
 @dataclass

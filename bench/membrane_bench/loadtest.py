@@ -33,11 +33,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
-import msgpack
 import zmq
 from hdrh.histogram import HdrHistogram
 
-from membrane_client import protocol
+from membrane_client.protocol import Request, peek_reply
 from membrane_errors import UserError
 
 __all__ = [
@@ -346,12 +345,11 @@ class _Channel:
     def request_bytes(self, number: int) -> bytes:
         """Encode request ``number`` of this client (ids are per socket, so ``number`` is fine)."""
         spec = self._spec
-        fields: dict[str, Any] = {"scene": spec.scene, "session": self._session}
+        request = Request(spec.payload, number, self._session, spec.scene)
         if spec.payload == "query":
             # Clients interleave along the time grid, so together they sweep it in order.
-            index = (number * spec.clients + self._client) % len(spec.times)
-            fields["t"] = spec.times[index]
-        return protocol.encode(protocol.request(spec.payload, number, **fields))
+            request.t = spec.times[(number * spec.clients + self._client) % len(spec.times)]
+        return request.to_wire()
 
     def send(self, number: int) -> bool:
         """Queue a request without blocking; False when ZeroMQ cannot take it now."""
@@ -371,29 +369,12 @@ class _Channel:
                 continue  # poll's whole milliseconds ran out a little early: check the clock
             frames = self._socket.recv_multipart(flags=zmq.NOBLOCK)
             received = time.perf_counter_ns()
-            request_id, code = _classify(frames[-1])
+            request_id, code = peek_reply(frames[-1])
             return request_id, received, code
 
     def close(self) -> None:
         self._socket.close(linger=0)
         self._context.term()
-
-
-def _classify(data: bytes) -> tuple[int, str | None]:
-    """(request id, None for a good reply or its error code); -1 when the id is unreadable."""
-    try:
-        reply = msgpack.unpackb(data, raw=False)
-    except (ValueError, msgpack.UnpackException):
-        return -1, "undecodable"
-    if not isinstance(reply, dict):
-        return -1, "undecodable"
-    request_id = reply.get("id")
-    number = request_id if isinstance(request_id, int) else -1
-    if reply.get("ok") is True:
-        return number, None
-    error = reply.get("error")
-    code = error.get("code") if isinstance(error, dict) else None
-    return number, str(code) if code else "error_without_code"
 
 
 def _wait_until(due_ns: int) -> None:

@@ -3,8 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import os
+import tempfile
+from pathlib import Path
 
-__all__ = ["add_keys"]
+import zmq.auth
+
+from membrane_client.curve import CurveError
+
+__all__ = ["add_keys", "create_keypair"]
+
+_OWNER_ONLY = 0o600
 
 
 def add_keys(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -24,8 +33,33 @@ def add_keys(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
 
 def _run_keys(args: argparse.Namespace) -> int:
-    from membrane_client.curve import create_keypair
-
     public, secret = create_keypair(args.directory, args.name)  # CurveError: a UserError, exit 2
     print(f"wrote {public} (public) and {secret} (secret, mode 0600)")
     return 0
+
+
+def create_keypair(directory: str | Path, name: str) -> tuple[Path, Path]:
+    """Write ``NAME.key`` (public, 0644) and ``NAME.key_secret`` (0600) into ``directory``.
+
+    The files are written in a private temporary folder and moved into place, so the secret key
+    is never readable by others, not even for an instant (``zmq.auth.create_certificates`` alone
+    leaves it to the umask, 0644 on most systems).
+
+    Raises:
+        CurveError: ``name`` is not a plain file stem, or a key file of that name exists.
+    """
+    folder = Path(directory)
+    if not name or Path(name).name != name or name.startswith("."):
+        raise CurveError(f"key name {name!r}: give a plain name such as 'server' or 'robot-1'")
+    public, secret = folder / f"{name}.key", folder / f"{name}.key_secret"
+    for existing in (public, secret):
+        if existing.exists():
+            raise CurveError(f"{existing}: exists; remove it first to make a new key pair")
+    folder.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=folder, prefix=".keys-") as private:  # mode 0700
+        made_public, made_secret = zmq.auth.create_certificates(private, name)
+        os.chmod(made_secret, _OWNER_ONLY)
+        os.chmod(made_public, 0o644)
+        os.replace(made_secret, secret)
+        os.replace(made_public, public)
+    return public, secret

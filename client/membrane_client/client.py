@@ -1,9 +1,5 @@
-"""The thin client: REQ semantics over ZeroMQ, with the zguide's Lazy Pirate on timeouts.
-
-After a timeout the REQ socket is in a state where it can neither send nor receive; it is closed
-(LINGER 0) and a fresh one is opened for the next attempt, never reused. Every socket has LINGER 0,
-so closing a client (or exiting the interpreter) never waits on undelivered messages.
-"""
+"""The thin client: the protocol's operations as methods, over a transport (ZeroMQ REQ with
+the zguide's Lazy Pirate by default, see ``transport``)."""
 
 from __future__ import annotations
 
@@ -12,21 +8,14 @@ import logging
 import time
 import uuid
 from collections.abc import Mapping
-from types import TracebackType
 from typing import Any
 
 import zmq
 
-from membrane_client.errors import MembraneError, Timeout, UserError
+from membrane_client.errors import MembraneError, UserError
 from membrane_client.frame import Frame, SceneInfo
-from membrane_client.protocol import (
-    MAX_REPLY_BYTES,
-    Op,
-    check_reply,
-    decode,
-    encode,
-    request,
-)
+from membrane_client.protocol import Op, Request, read_reply
+from membrane_client.transport import LazyPirate, Transport
 
 __all__ = ["DEFAULT_ADDRESS", "Client"]
 
@@ -49,6 +38,8 @@ class Client:
         context: ZeroMQ context to use (default: the process-wide shared one).
         socket_options: Extra ``zmq`` socket options set on every socket this client opens
             (e.g. CurveZMQ keys), option -> value.
+        transport: Carries the requests instead of ZeroMQ (``transport.Transport``), e.g. to a
+            dispatcher in this process; ``address`` then only names it.
 
     Raises:
         UserError: ``address`` is not a valid ZeroMQ endpoint, or an argument is out of range.
@@ -64,6 +55,7 @@ class Client:
         session: str | None = None,
         context: zmq.Context[zmq.Socket[bytes]] | None = None,
         socket_options: Mapping[int, int | bytes] | None = None,
+        transport: Transport | None = None,
     ) -> None:
         if timeout is not None and not timeout > 0:
             raise UserError(f"timeout must be > 0 seconds (or None), got {timeout}")
@@ -74,13 +66,12 @@ class Client:
         self.retries = retries if timeout is not None else 0
         self.scene = scene
         self.session = session or uuid.uuid4().hex
-        self._context = context or zmq.Context.instance()
-        self._socket_options = dict(socket_options or {})
         self._ids = itertools.count(1)
         self._described: dict[str | None, SceneInfo] = {}
-        self._socket: zmq.Socket[bytes] | None = None
         self._closed = False
-        self._socket = self._open_socket()  # fails fast on a malformed address
+        self._transport = transport or LazyPirate(  # fails fast on a malformed address
+            address, timeout, self.retries, context, socket_options
+        )
 
     # -- the public operations ---------------------------------------------------------------
 
@@ -97,20 +88,15 @@ class Client:
         return self._described[key]
 
     def query(self, t: float, scene: str | None = None, *, dtype: str = "<f4") -> Frame:
-        """The frame the scene serves for simulation time ``t`` (seconds).
+        """The frame ``scene`` (default: the client's) serves for simulation time ``t`` (s), its
+        displacements as ``dtype``: ``"<f4"`` (float32) or ``"<f8"``.
 
         The first query of a scene also fetches its description (one extra round trip), so
         that ``Frame.positions()`` works; so does the first query after the server reloaded the
         scene with changes (the reply's revision differs from the description's).
-
-        Args:
-            t: Simulation time, seconds.
-            scene: Scene name (default: the client's ``scene``).
-            dtype: ``"<f4"`` (float32, the default) or ``"<f8"`` for float64 displacements.
         """
         info = self.describe(scene)
-        wire_dtype = None if dtype == "<f4" else dtype  # the default needs no field
-        fields = {"scene": scene or self.scene, "t": float(t), "dtype": wire_dtype}
+        fields = {"scene": scene or self.scene, "t": float(t), "dtype": dtype}
         reply = self.request(Op.QUERY, **fields)
         if _revision(reply) not in (None, info.revision):
             # The server reloaded this scene with changes: its lattice or placement may differ.
@@ -132,7 +118,7 @@ class Client:
         return time.perf_counter() - start
 
     def request(self, op: str, **fields: Any) -> dict[str, Any]:
-        """Send one request and return its (successful) reply.
+        """Send one request (``protocol.Request``'s fields) and return its successful reply.
 
         Fields whose value is None are left out; the session id is added.
 
@@ -142,9 +128,12 @@ class Client:
             ProtocolError: The reply was not a valid protocol message.
             MembraneError: The client is closed, or ZeroMQ failed.
         """
+        if self._closed:
+            raise MembraneError("the client is closed")
         request_id = next(self._ids)
-        message = request(op, request_id, session=self.session, **fields)
-        return check_reply(self._round_trip(encode(message)), request_id)
+        given = {key: value for key, value in fields.items() if value is not None}
+        payload = Request(op, request_id, self.session, **given).to_wire()
+        return read_reply(self._transport.round_trip(payload), request_id)
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -154,74 +143,24 @@ class Client:
         return self._closed
 
     def close(self) -> None:
-        """Close the socket (LINGER 0: returns at once). Safe to call twice."""
-        self._discard_socket()
+        """Close the transport (a socket with LINGER 0: returns at once). Safe to call twice."""
+        self._transport.close()
         self._closed = True
 
     def __enter__(self) -> Client:
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        traceback: TracebackType | None,
-    ) -> None:
+    def __exit__(self, *exc_info: object) -> None:
         self.close()
 
     def __del__(self) -> None:
         # A forgotten client must not keep a socket that could block the context's term().
-        if getattr(self, "_socket", None) is not None:
+        if getattr(self, "_transport", None) is not None:
             self.close()
 
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
         return f"Client({self.address!r}, timeout={self.timeout}, scene={self.scene!r}, {state})"
-
-    # -- Lazy Pirate ------------------------------------------------------------------------
-
-    def _round_trip(self, payload: bytes) -> dict[str, Any]:
-        if self._closed:
-            raise MembraneError("the client is closed")
-        attempts = self.retries + 1
-        for attempt in range(1, attempts + 1):
-            socket = self._socket or self._open_socket()
-            self._socket = socket
-            try:
-                socket.send(payload, copy=True)
-                data = socket.recv(copy=True)
-            except zmq.Again:
-                # The REQ socket is now stuck mid-exchange: throw it away, never reuse it.
-                self._discard_socket()
-                logger.debug("no reply from %s (attempt %d/%d)", self.address, attempt, attempts)
-                continue
-            except zmq.ZMQError as exc:
-                self._discard_socket()
-                raise MembraneError(f"ZeroMQ error talking to {self.address}: {exc}") from None
-            return decode(data)
-        tries = f" after {attempts} attempts" if attempts > 1 else ""
-        raise Timeout(f"no reply from {self.address} within {self.timeout} s{tries}")
-
-    def _open_socket(self) -> zmq.Socket[bytes]:
-        socket: zmq.Socket[bytes] = self._context.socket(zmq.REQ)
-        socket.setsockopt(zmq.LINGER, 0)
-        milliseconds = -1 if self.timeout is None else max(1, round(self.timeout * 1000))
-        socket.setsockopt(zmq.RCVTIMEO, milliseconds)
-        socket.setsockopt(zmq.SNDTIMEO, milliseconds)
-        socket.setsockopt(zmq.MAXMSGSIZE, MAX_REPLY_BYTES)
-        for option, value in self._socket_options.items():
-            socket.setsockopt(option, value)
-        try:
-            socket.connect(self.address)
-        except zmq.ZMQError as exc:
-            socket.close(linger=0)
-            raise UserError(f"cannot connect to {self.address!r}: {exc}") from None
-        return socket
-
-    def _discard_socket(self) -> None:
-        socket, self._socket = self._socket, None
-        if socket is not None and not socket.closed:
-            socket.close(linger=0)
 
 
 def _revision(reply: dict[str, Any]) -> str | None:

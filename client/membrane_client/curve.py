@@ -1,6 +1,6 @@
 """CurveZMQ keys for a client: the socket options that authenticate it to a server.
 
-Keys live in files made by ``membrane keys DIR NAME`` (``create_keypair``; the format of
+Keys live in files made by ``membrane keys DIR NAME`` (the format of
 ``zmq.auth.create_certificates``: ``NAME.key`` holds a public key, ``NAME.key_secret`` both keys,
 readable by its owner only). A client needs the server's public key and its own secret file;
 its public key must be in the server's directory of allowed clients::
@@ -18,9 +18,7 @@ Needs pyzmq only (``zmq.auth`` ships with it). The server side is ``membrane_ser
 from __future__ import annotations
 
 import logging
-import os
 import stat
-import tempfile
 from pathlib import Path
 
 import zmq
@@ -33,7 +31,6 @@ __all__ = [
     "CurveError",
     "SocketOptions",
     "client_socket_options",
-    "create_keypair",
     "load_keypair",
     "load_public_key",
 ]
@@ -41,7 +38,6 @@ __all__ = [
 SocketOptions = dict[int, int | bytes]
 
 _Z85_KEY_CHARS = 40
-_OWNER_ONLY = 0o600
 
 logger = logging.getLogger(__name__)
 
@@ -84,33 +80,6 @@ def load_keypair(path: str | Path, whose: str) -> tuple[bytes, bytes]:
             f"{path}: holds no secret key (the {whose} needs its .key_secret file, not .key)"
         )
     _warn_if_exposed(Path(path))
-    return public, secret
-
-
-def create_keypair(directory: str | Path, name: str) -> tuple[Path, Path]:
-    """Write ``NAME.key`` (public, 0644) and ``NAME.key_secret`` (0600) into ``directory``.
-
-    The files are written in a private temporary folder and moved into place, so the secret key
-    is never readable by others, not even for an instant (``zmq.auth.create_certificates`` alone
-    leaves it to the umask, 0644 on most systems).
-
-    Raises:
-        CurveError: ``name`` is not a plain file stem, or a key file of that name exists.
-    """
-    folder = Path(directory)
-    if not name or Path(name).name != name or name.startswith("."):
-        raise CurveError(f"key name {name!r}: give a plain name such as 'server' or 'robot-1'")
-    public, secret = folder / f"{name}.key", folder / f"{name}.key_secret"
-    for existing in (public, secret):
-        if existing.exists():
-            raise CurveError(f"{existing}: exists; remove it first to make a new key pair")
-    folder.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=folder, prefix=".keys-") as private:  # mode 0700
-        made_public, made_secret = zmq.auth.create_certificates(private, name)
-        os.chmod(made_secret, _OWNER_ONLY)
-        os.chmod(made_public, 0o644)
-        os.replace(made_secret, secret)
-        os.replace(made_public, public)
     return public, secret
 
 

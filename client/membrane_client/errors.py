@@ -17,14 +17,9 @@ class ProtocolError(MembraneError):
 
 
 class ServerError(MembraneError):
-    """The server answered with an error reply.
-
-    Attributes:
-        code: The error code (one of ``membrane_client.protocol.ErrorCode``'s values, as a str).
-        message: The server's one-line explanation.
-    """
+    """The server answered with an error reply: its ``code`` (an ``ErrorCode`` value, as a
+    str) and its one-line ``message``."""
 
     def __init__(self, code: str, message: str) -> None:
         super().__init__(f"{code}: {message}")
-        self.code = code
-        self.message = message
+        self.code, self.message = code, message

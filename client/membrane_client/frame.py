@@ -1,4 +1,6 @@
-"""What the client hands back: a scene's description (SceneInfo) and one served frame (Frame)."""
+"""The replies with a schema of their own: a scene's description (SceneInfo, the ``describe``
+reply) and one served frame (Frame, the ``query`` reply). The server writes them with
+``to_reply_fields``, the client reads them with ``from_reply``: one owner for both directions."""
 
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from membrane_client.errors import ProtocolError, UserError
-from membrane_client.protocol import unpack_array
+from membrane_client.protocol import pack_array, unpack_array
 
 __all__ = ["AXES", "Frame", "SceneInfo"]
 
@@ -20,47 +22,29 @@ AXES = ("x", "y", "z")
 class SceneInfo:
     """A served scene as ``describe`` returns it: the lattice, its placement and its time grid.
 
-    Attributes:
-        name: Scene name (what requests put in ``scene``).
-        description: One line of text.
-        points: (n, d) float64 lattice coordinates in problem units (d = 1 or 2).
-        shape: Lattice shape, e.g. (100,) or (20, 20); a frame's ``z`` has this shape.
-        dt: Fixed time step, seconds.
-        duration: Length of the time domain, seconds (frames at steps 0 .. duration / dt).
-        start_offset: Simulation time at which the response starts, seconds.
-        steps: Number of frames (duration / dt + 1).
-        origin: (3,) world position of lattice coordinate 0.
-        size: World length of one lattice unit.
-        scale: Factor from displacement (problem units) to world units along ``axis``.
-        axis: World axis the displacement moves spheres along ('x', 'y' or 'z').
-        policy: Out-of-domain policy ('error', 'clamp' or 'hold').
-        snapping: Time-snapping rule ('nearest' or 'linear').
-        evaluator: How the server answers queries ('network', 'separable', 'table', 'exact').
-        evaluator_info: The evaluator's own figures (memory, rank, ...).
-        model: Model summary, including its measured error against the exact solution.
-        units: Units of times, coordinates and displacements.
-        revision: Names the scene's content: a query reply with another revision means the
-            server reloaded the scene with changes (the client then describes it again).
+    Coordinates and displacements are in problem units, times in seconds (``units`` says more).
     """
 
-    name: str
-    description: str
-    points: np.ndarray
-    shape: tuple[int, ...]
-    dt: float
-    duration: float
-    start_offset: float
-    steps: int
-    origin: np.ndarray
-    size: float
-    scale: float
-    axis: str
-    policy: str
-    snapping: str
-    evaluator: str
-    evaluator_info: dict[str, Any] = field(default_factory=dict)
-    model: dict[str, Any] = field(default_factory=dict)
-    units: dict[str, Any] = field(default_factory=dict)
+    name: str  # what requests put in ``scene``
+    description: str  # one line of text
+    points: np.ndarray  # (n, d) float64 lattice coordinates, d = 1 or 2
+    shape: tuple[int, ...]  # lattice shape, e.g. (100,) or (20, 20): a frame's ``z`` has it
+    dt: float  # the fixed time step
+    duration: float  # length of the time domain (frames at steps 0 .. duration / dt)
+    start_offset: float  # simulation time at which the response starts
+    steps: int  # number of frames, duration / dt + 1
+    origin: np.ndarray  # (3,) world position of lattice coordinate 0
+    size: float  # world length of one lattice unit
+    scale: float  # factor from displacement to world units along ``axis``
+    axis: str  # world axis the displacement moves spheres along: 'x', 'y' or 'z'
+    policy: str  # out-of-domain policy: 'error', 'clamp' or 'hold'
+    snapping: str  # time snapping: 'nearest' or 'linear'
+    evaluator: str  # how queries are answered: 'network', 'separable', 'table' or 'exact'
+    evaluator_info: dict[str, Any] = field(default_factory=dict)  # its figures (memory, ...)
+    model: dict[str, Any] = field(default_factory=dict)  # incl. its measured error
+    units: dict[str, Any] = field(default_factory=dict)  # of times, coordinates, displacements
+    # Names the scene's content: a query reply with another revision means the server reloaded
+    # the scene with changes (the client then describes it again).
     revision: str = ""
 
     @property
@@ -90,6 +74,27 @@ class SceneInfo:
             rest[:, lateral[column]] += self.size * self.points[:, column]
         rest.setflags(write=False)
         return rest
+
+    def to_reply_fields(self) -> dict[str, Any]:
+        """The ``describe`` reply's fields (``from_reply`` reads them back)."""
+        placement = {"origin": [float(v) for v in self.origin], "size": self.size}
+        fields = {
+            "scene": self.name,
+            "description": self.description,
+            "points": pack_array(self.points, "<f8"),
+            "shape": list(self.shape),
+            "dt": self.dt,
+            "duration": self.duration,
+            "start_offset": self.start_offset,
+            "steps": self.steps,
+            "placement": {**placement, "scale": self.scale, "axis": self.axis},
+            "policy": self.policy,
+            "snapping": self.snapping,
+            "evaluator": {"kind": self.evaluator, **self.evaluator_info},
+            "model": self.model,
+            "units": self.units,
+        }
+        return {**fields, "revision": self.revision} if self.revision else fields
 
     @classmethod
     def from_reply(cls, reply: dict[str, Any]) -> SceneInfo:
@@ -142,28 +147,16 @@ class SceneInfo:
 
 @dataclass(frozen=True, eq=False)
 class Frame:
-    """One served frame.
+    """One served frame."""
 
-    Attributes:
-        t: The time served, seconds (the step time under nearest snapping).
-        step: The step index served.
-        z: Displacement shaped like the lattice (read-only), in problem units; float32
-            unless the query asked for float64.
-        requested_t: The time the query asked for.
-        domain: 'inside', 'clamped' or 'held' (how the scene's policy treated the time).
-        scene: Scene name.
-        info: The scene's description, used by ``positions()``.
-        revision: The scene's revision that served this frame ("" from servers without one).
-    """
-
-    t: float
-    step: int
-    z: np.ndarray
-    requested_t: float
-    domain: str
-    scene: str
-    info: SceneInfo | None = None
-    revision: str = ""
+    t: float  # the time served, s (the step's time under nearest snapping)
+    step: int  # the step index served
+    z: np.ndarray  # displacement shaped like the lattice (read-only); float32 unless asked
+    requested_t: float  # the time the query asked for
+    domain: str  # 'inside', 'clamped' or 'held': how the scene's policy treated the time
+    scene: str  # the scene's name
+    info: SceneInfo | None = None  # the scene's description, for ``positions()``
+    revision: str = ""  # the scene's revision that served it ("" from older servers)
 
     def positions(self) -> np.ndarray:
         """(n, 3) world coordinates: rest position plus ``scale * z`` along the scene's axis."""
@@ -172,6 +165,19 @@ class Frame:
         positions = self.info.rest_positions()
         positions[:, self.info.axis_index] += self.info.scale * self.z.reshape(-1)
         return positions
+
+    def to_reply_fields(self, dtype: str = "<f4", *, requested: bool = True) -> dict[str, Any]:
+        """The ``query`` reply's fields, z as ``dtype``; without ``requested_t`` when not
+        ``requested`` (the server caches a step's fields and adds the time each request asked)."""
+        fields = {
+            "scene": self.scene,
+            "revision": self.revision,
+            "t": self.t,
+            "step": self.step,
+            "domain": self.domain,
+            "z": pack_array(self.z, dtype),
+        }
+        return {**fields, "requested_t": self.requested_t} if requested else fields
 
     @classmethod
     def from_reply(cls, reply: dict[str, Any], info: SceneInfo | None = None) -> Frame:

@@ -7,11 +7,10 @@ requests and build replies. It depends on msgpack and numpy only.
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import Any
+from typing import Any, NoReturn
 
 import msgpack
 import numpy as np
@@ -27,19 +26,19 @@ __all__ = [
     "MAX_SESSION_CHARS",
     "PROTOCOL_VERSION",
     "Domain",
-    "EncodedFields",
     "ErrorCode",
     "Op",
+    "Request",
+    "RequestError",
     "check_reply",
     "decode",
     "encode",
-    "encode_fields",
-    "encode_ok_reply",
     "error_reply",
     "ok_reply",
     "pack_array",
+    "peek_reply",
     "preview",
-    "request",
+    "read_reply",
     "unpack_array",
 ]
 
@@ -148,90 +147,115 @@ def _nesting_exceeds(message: dict[str, Any], limit: int) -> bool:
     return False
 
 
-def request(op: str, request_id: int, **fields: Any) -> dict[str, Any]:
-    """Build a request envelope; fields whose value is None are left out."""
-    message: dict[str, Any] = {"v": PROTOCOL_VERSION, "id": int(request_id), "op": str(op)}
-    message.update({key: value for key, value in fields.items() if value is not None})
-    return message
+class RequestError(UserError):
+    """A request that breaks the protocol: the server answers it with ``code`` (and the id,
+    when it could be read); ``request`` is its envelope (op, id, session) when that was valid."""
+
+    def __init__(self, code: ErrorCode, message: str, request: Request | None = None) -> None:
+        super().__init__(message)
+        self.code, self.request = code, request
+        self.request_id: int | None = None if request is None else request.id
+
+
+@dataclass(slots=True)
+class Request:
+    """One request as the wire carries it (docs/PROTOCOL.md, "Requests"): the client builds
+    it and calls ``to_wire``; the server reads it with ``from_wire``."""
+
+    op: str
+    id: int
+    session: str | None = None
+    scene: str | None = None
+    t: float | None = None
+    dtype: str = "<f4"
+
+    def to_wire(self) -> bytes:
+        """The request's msgpack bytes; fields left at their defaults are not sent."""
+        message: dict[str, Any] = {"v": PROTOCOL_VERSION, "id": self.id, "op": self.op}
+        for key in ("session", "scene", "t"):
+            value = getattr(self, key)
+            if value is not None:
+                message[key] = value
+        if self.dtype != "<f4":
+            message["dtype"] = self.dtype
+        return encode(message)
+
+    @classmethod
+    def from_wire(cls, data: bytes) -> Request:
+        """Read and check one request; raises RequestError (its ``code`` is the reply's)."""
+        try:
+            message = decode(data, MAX_REQUEST_BYTES)
+        except ProtocolError as exc:
+            raise RequestError(ErrorCode.BAD_MESSAGE, str(exc)) from None
+        value = message.get("id")
+        request_id = value if type(value) is int and 0 <= value < 2**63 else None
+        try:
+            request = cls._envelope(message, request_id)
+        except RequestError as exc:
+            exc.request_id = request_id
+            raise
+        request._read_fields(message)
+        return request
+
+    @classmethod
+    def _envelope(cls, message: dict[str, Any], request_id: int | None) -> Request:
+        if request_id is None:
+            reason = f"'id' must be an int in [0, 2^63), got {preview(message.get('id'))}"
+            raise RequestError(ErrorCode.BAD_REQUEST, reason)
+        version = message.get("v")
+        if type(version) is not int or version != PROTOCOL_VERSION:  # 1.0 and True are not 1
+            raise RequestError(
+                ErrorCode.BAD_VERSION,
+                f"protocol version {preview(version)} unsupported; this server speaks "
+                f"version {PROTOCOL_VERSION} (an int)",
+            )
+        op = message.get("op")
+        if not isinstance(op, str):
+            raise RequestError(ErrorCode.BAD_REQUEST, f"'op' must be a string, got {preview(op)}")
+        if op not in _OPS:
+            known = ", ".join(Op)
+            raise RequestError(ErrorCode.UNKNOWN_OP, f"unknown op {preview(op)}; ops: {known}")
+        session = message.get("session")
+        if session is not None and not (type(session) is str and len(session) <= _SESSION):
+            reason = f"'session' must be a string of at most {_SESSION} characters"
+            raise RequestError(ErrorCode.BAD_REQUEST, reason)
+        return cls(op, request_id, session)
+
+    def _read_fields(self, message: dict[str, Any]) -> None:
+        if self.op not in _SCENE_OPS:  # other ops ignore every other field
+            return
+        self.scene = scene = message.get("scene")
+        if scene is not None and type(scene) is not str:
+            self._refuse(ErrorCode.BAD_REQUEST, f"'scene' must be a string, got {preview(scene)}")
+        if self.op != Op.QUERY:
+            return
+        self.dtype = dtype = message.get("dtype", "<f4")
+        if dtype not in ARRAY_DTYPES:
+            kinds = list(ARRAY_DTYPES)
+            self._refuse(
+                ErrorCode.BAD_REQUEST, f"'dtype' must be one of {kinds}, got {preview(dtype)}"
+            )
+        if "t" not in message:
+            self._refuse(ErrorCode.BAD_REQUEST, "query needs 't' (seconds, a float)")
+        t = message["t"]
+        if isinstance(t, bool) or not isinstance(t, int | float):
+            self._refuse(ErrorCode.BAD_REQUEST, f"'t' must be a number, got {preview(t)}")
+        self.t = float(t)
+        if not math.isfinite(self.t):
+            self._refuse(ErrorCode.INVALID_TIME, f"'t' must be finite, got {self.t}")
+
+    def _refuse(self, code: ErrorCode, message: str) -> NoReturn:
+        raise RequestError(code, message, Request(self.op, self.id, self.session))
+
+
+_OPS = frozenset(Op)
+_SCENE_OPS = frozenset((Op.DESCRIBE, Op.QUERY))
+_SESSION = MAX_SESSION_CHARS
 
 
 def ok_reply(request_id: int | None, **fields: Any) -> dict[str, Any]:
     """Build a success reply to the request with this id."""
     return {"v": PROTOCOL_VERSION, "id": request_id, "ok": True, **fields}
-
-
-@dataclass(frozen=True)
-class EncodedFields:
-    """A reply's fields serialised once, to be sent to many requests (``encode_ok_reply``)."""
-
-    count: int
-    data: bytes
-
-    def plus(self, key: str, value: Any) -> EncodedFields:
-        """These fields and one more, after them (what ``encode_fields`` would give for the
-        fields with ``key`` added last), without encoding the others again."""
-        packer = msgpack.Packer(use_bin_type=True)
-        return EncodedFields(self.count + 1, self.data + packer.pack(key) + packer.pack(value))
-
-
-def encode_fields(fields: Mapping[str, Any]) -> EncodedFields:
-    """Serialise a success reply's fields (everything but the envelope) once."""
-    packer = msgpack.Packer(use_bin_type=True)
-    data = b"".join(packer.pack(key) + packer.pack(value) for key, value in fields.items())
-    return EncodedFields(len(fields), data)
-
-
-def encode_ok_reply(request_id: int | None, fields: EncodedFields, **extra: Any) -> bytes:
-    """The bytes of ``encode(ok_reply(request_id, **fields, **extra))``, without serialising
-    ``fields`` again (a large ``describe`` is encoded once per scene, a frame once per step)."""
-    parts = [
-        _map_header(len(_ENVELOPE_KEYS) + fields.count + len(extra)),
-        _VERSION_FIELD,
-        _ID_KEY,
-        _pack_scalar(request_id),
-        _OK_FIELD,
-        fields.data,
-    ]
-    for key, value in extra.items():
-        parts += (msgpack.packb(key), _pack_scalar(value))
-    return b"".join(parts)
-
-
-_ENVELOPE_KEYS = ("v", "id", "ok")
-_VERSION_FIELD: bytes = msgpack.packb("v") + msgpack.packb(PROTOCOL_VERSION)
-_ID_KEY: bytes = msgpack.packb("id")
-_OK_FIELD: bytes = msgpack.packb("ok") + msgpack.packb(True)
-
-
-def _pack_scalar(value: Any) -> bytes:
-    """msgpack bytes of an id or a time, without building a Packer per call (the hot path)."""
-    kind = type(value)
-    if kind is float:
-        return b"\xcb" + _FLOAT64.pack(value)
-    if kind is int and 0 <= value < 2**64:
-        if value < 128:
-            return _FIXINTS[value]
-        for marker, limit, width in _UINT_FORMATS:
-            if value < limit:
-                return marker + value.to_bytes(width, "big")
-    if value is None:
-        return b"\xc0"
-    packed: bytes = msgpack.packb(value, use_bin_type=True)
-    return packed
-
-
-_FLOAT64 = struct.Struct(">d")
-_FIXINTS = [bytes([n]) for n in range(128)]
-_UINT_FORMATS = ((b"\xcc", 2**8, 1), (b"\xcd", 2**16, 2), (b"\xce", 2**32, 4), (b"\xcf", 2**64, 8))
-
-
-def _map_header(count: int) -> bytes:
-    """msgpack's map header for ``count`` entries (fixmap, map 16 or map 32)."""
-    if count < 16:
-        return bytes([0x80 | count])
-    if count < 2**16:
-        return b"\xde" + count.to_bytes(2, "big")
-    return b"\xdf" + count.to_bytes(4, "big")
 
 
 def error_reply(request_id: int | None, code: ErrorCode | str, message: str) -> dict[str, Any]:
@@ -300,6 +324,38 @@ def check_reply(message: Mapping[str, Any], request_id: int) -> dict[str, Any]:
     if message.get("id") != request_id:
         raise ProtocolError(f"reply id {message.get('id')!r}, expected {request_id}")
     return dict(message)
+
+
+def read_reply(data: bytes, request_id: int) -> dict[str, Any]:
+    """Decode and check the reply to request ``request_id`` (raises as ``check_reply``)."""
+    return check_reply(decode(data), request_id)
+
+
+def peek_reply(data: bytes) -> tuple[int, str | None]:
+    """(request id, None for a success or the error's code) without decoding a frame's arrays.
+
+    For the load tester, which reads only whether each reply answered. Replies begin with their
+    envelope (``v``, ``id``, ``ok``); the id is -1 when unreadable, and an undecodable reply's
+    code is ``"undecodable"``.
+    """
+    unpacker = msgpack.Unpacker(raw=False, max_buffer_size=len(data) or 1)
+    unpacker.feed(data)
+    envelope: dict[Any, Any] = {}
+    try:
+        remaining = unpacker.read_map_header()
+        while remaining and not (envelope.get("ok") is True and "id" in envelope):
+            key = unpacker.unpack()
+            envelope[key] = unpacker.unpack()
+            remaining -= 1
+    except Exception:  # msgpack raises a zoo of types on garbage
+        return -1, "undecodable"
+    request_id = envelope.get("id")
+    number = request_id if type(request_id) is int else -1
+    if envelope.get("ok") is True:
+        return number, None
+    error = envelope.get("error")
+    code = error.get("code") if isinstance(error, dict) else None
+    return number, str(code) if code else "error_without_code"
 
 
 def _is_count(value: Any) -> bool:

@@ -10,7 +10,6 @@ from __future__ import annotations
 import functools
 import hashlib
 import logging
-import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -20,27 +19,23 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from membrane_client.errors import ProtocolError
+from membrane_client.frame import Frame, SceneInfo
 from membrane_client.protocol import (
-    ARRAY_DTYPES,
     MAX_LATTICE_POINTS,
     MAX_REQUEST_BYTES,
-    MAX_SESSION_CHARS,
     PROTOCOL_VERSION,
-    EncodedFields,
     ErrorCode,
     Op,
-    decode,
+    Request,
+    RequestError,
     encode,
-    encode_fields,
-    encode_ok_reply,
     error_reply,
     ok_reply,
-    pack_array,
     preview,
 )
 from membrane_server.evaluators import Evaluator, build_evaluator
 from membrane_server.reply_cache import ReplyCache
+from membrane_server.reply_encoding import EncodedFields, encode_fields, encode_ok_reply
 from membrane_server.scene import Scene, SceneError, load_scene
 from membrane_server.source import ModelSource, resolve_source
 from membrane_server.timeline import OutOfDomain, Sample, Timeline
@@ -48,8 +43,6 @@ from membrane_server.timeline import OutOfDomain, Sample, Timeline
 __all__ = ["Answer", "Dispatcher", "RequestError", "ServedScene", "server_version"]
 
 logger = logging.getLogger(__name__)
-
-_MAX_REQUEST_ID = 2**63
 
 UNITS = {
     "time": "s (simulation time; model time t = step * dt)",
@@ -71,14 +64,6 @@ def server_version() -> str:
         except metadata.PackageNotFoundError:
             continue
     return "membrane (not installed)"
-
-
-class RequestError(Exception):
-    """A request the server refuses: becomes an error reply with this code."""
-
-    def __init__(self, code: ErrorCode, message: str) -> None:
-        super().__init__(message)
-        self.code = code
 
 
 class ServedScene:
@@ -108,7 +93,8 @@ class ServedScene:
 
     @classmethod
     def load(cls, scene: Scene | str | Path, threads: int = 1) -> ServedScene:
-        """Load a scene (object, built-in name or path) and build its evaluator."""
+        """Load a scene (object, built-in name or path), resolve its model once, build its
+        evaluator from that."""
         if not isinstance(scene, Scene):
             scene = load_scene(scene)
         source = resolve_source(scene)
@@ -135,26 +121,27 @@ class ServedScene:
 
     def query(self, t: float, dtype: str = "<f4") -> dict[str, Any]:
         """The ``query`` reply's fields for simulation time ``t`` (raises OutOfDomain)."""
-        return {**self._sample_fields(self.timeline.resolve(t), dtype), "requested_t": t}
+        return self._served_frame(self.timeline.resolve(t), t).to_reply_fields(dtype)
 
     def encoded_query(self, t: float, dtype: str = "<f4") -> EncodedFields:
         """``query``'s fields but ``requested_t``, encoded; those of a time on a step come
         from the reply cache (raises OutOfDomain)."""
         sample = self.timeline.resolve(t)
-        if sample.weight != 0.0:  # between two steps: interpolated, not cached
-            return encode_fields(self._sample_fields(sample, dtype))
-        key = (sample.step, dtype, sample.domain)
-        return self._replies.get(key, lambda: encode_fields(self._sample_fields(sample, dtype)))
 
-    def _sample_fields(self, sample: Sample, dtype: str) -> dict[str, Any]:
-        return {
-            "scene": self.name,
-            "revision": self.revision,
-            "t": sample.t,
-            "step": sample.step,
-            "domain": str(sample.domain),
-            "z": pack_array(self.frame(sample).reshape(self.shape), dtype),
-        }
+        def fields() -> EncodedFields:
+            frame = self._served_frame(sample, t)
+            return encode_fields(frame.to_reply_fields(dtype, requested=False))
+
+        if sample.weight != 0.0:  # between two steps: interpolated, not cached
+            return fields()
+        return self._replies.get((sample.step, dtype, sample.domain), fields)
+
+    def _served_frame(self, sample: Sample, requested_t: float) -> Frame:
+        z = self.frame(sample).reshape(self.shape)
+        domain = str(sample.domain)
+        return Frame(
+            sample.t, sample.step, z, requested_t, domain, self.name, revision=self.revision
+        )
 
     def frame(self, sample: Sample) -> np.ndarray:
         """The (n,) displacement for a resolved sample (interpolated under linear snapping)."""
@@ -166,28 +153,27 @@ class ServedScene:
         return mixed
 
     def _describe(self) -> dict[str, Any]:
-        scene = self.scene
-        return {
-            "scene": scene.name,
-            "description": scene.description,
-            "points": pack_array(self.evaluator.points, "<f8"),
-            "shape": list(self.shape),
-            "dt": scene.dt,
-            "duration": scene.duration,
-            "start_offset": scene.start_offset,
-            "steps": scene.steps,
-            "placement": {
-                "origin": list(scene.placement.origin),
-                "size": scene.placement.size,
-                "scale": scene.placement.scale,
-                "axis": scene.placement.axis,
-            },
-            "policy": scene.policy,
-            "snapping": scene.snapping,
-            "evaluator": self.evaluator.info(),
-            "model": self.source.summary(),
-            "units": UNITS,
-        }
+        scene, placement = self.scene, self.scene.placement
+        return SceneInfo(
+            name=scene.name,
+            description=scene.description,
+            points=self.evaluator.points,
+            shape=tuple(self.shape),
+            dt=scene.dt,
+            duration=scene.duration,
+            start_offset=scene.start_offset,
+            steps=scene.steps,
+            origin=np.asarray(placement.origin, dtype=np.float64),
+            size=placement.size,
+            scale=placement.scale,
+            axis=placement.axis,
+            policy=scene.policy,
+            snapping=scene.snapping,
+            evaluator=self.evaluator.kind,
+            evaluator_info={k: v for k, v in self.evaluator.info().items() if k != "kind"},
+            model=self.source.summary(),
+            units=UNITS,
+        ).to_reply_fields()
 
 
 class Prepared(NamedTuple):
@@ -230,7 +216,7 @@ class Dispatcher:
             raise ValueError(f"scene names must be distinct, got {names}")
         self._stats_snapshot = stats_snapshot or dict
         self._only = scenes[0] if len(scenes) == 1 else None
-        self._ops: dict[str, Callable[[dict[str, Any]], dict[str, Any] | Prepared]] = {
+        self._ops: dict[str, Callable[[Request], dict[str, Any] | Prepared]] = {
             Op.HELLO: self._hello,
             Op.DESCRIBE: self._describe,
             Op.QUERY: self._query,
@@ -247,81 +233,43 @@ class Dispatcher:
         """Answer one request given as its payload frames (exactly one is valid). Never raises.
 
         Nothing from a request is recorded (session, op) unless its envelope is valid, and no
-        value a client sent is formatted whole into a reply or a log line (``preview``).
+        value a client sent is formatted whole into a reply or a log line (``preview``): the
+        checks are ``protocol.Request.from_wire``'s, the schema's owner.
         """
         if len(body) != 1:
             reason = f"expected one payload frame, got {len(body)}"
             return self._error(None, ErrorCode.BAD_MESSAGE, reason)
         try:
-            message = decode(body[0], MAX_REQUEST_BYTES)
-        except ProtocolError as exc:
-            return self._error(None, ErrorCode.BAD_MESSAGE, str(exc))
-        request_id = _request_id(message)
-        op = message.get("op")
-        op_name = op if isinstance(op, str) and op in self._ops else None
-        session: str | None = None
-        try:
-            session = self._check_envelope(message, request_id)
-            fields = self._ops[message["op"]](message)
-            if isinstance(fields, Prepared):
-                reply = encode_ok_reply(request_id, fields.fields, **fields.extra)
-                return Answer(reply, op_name, None, fields.scene, session)
-            reply = encode(ok_reply(request_id, **fields))
+            request = Request.from_wire(body[0])
         except RequestError as exc:
-            return self._error(request_id, exc.code, str(exc), op_name, session)
+            envelope = exc.request  # op and session are recorded once the envelope is valid
+            op, session = (None, None) if envelope is None else (envelope.op, envelope.session)
+            return self._error(exc.request_id, exc.code, str(exc), op, session)
+        try:
+            fields = self._ops[request.op](request)
+            if isinstance(fields, Prepared):
+                reply = encode_ok_reply(request.id, fields.fields, **fields.extra)
+                return Answer(reply, request.op, None, fields.scene, request.session)
+            reply = encode(ok_reply(request.id, **fields))
+        except RequestError as exc:
+            return self._error(request.id, exc.code, str(exc), request.op, request.session)
         except Exception as exc:  # a bug must cost one reply, never the server
-            logger.exception("internal error answering op %s", op_name or "(invalid)")
-            message_text = f"the server failed answering this request: {type(exc).__name__}"
-            return self._error(request_id, ErrorCode.INTERNAL_ERROR, message_text, op_name, session)
-        return Answer(reply, op_name, None, None, session)
-
-    # -- envelope ----------------------------------------------------------------------------
-
-    def _check_envelope(self, message: dict[str, Any], request_id: int | None) -> str | None:
-        """Raise RequestError unless the envelope is valid; return its session (or None)."""
-        if request_id is None:
-            raise RequestError(
-                ErrorCode.BAD_REQUEST,
-                f"'id' must be an int in [0, 2^63), got {preview(message.get('id'))}",
+            logger.exception("internal error answering op %s", request.op)
+            reason = f"the server failed answering this request: {type(exc).__name__}"
+            return self._error(
+                request.id, ErrorCode.INTERNAL_ERROR, reason, request.op, request.session
             )
-        version = message.get("v")
-        if type(version) is not int or version != PROTOCOL_VERSION:  # 1.0 and True are not 1
-            raise RequestError(
-                ErrorCode.BAD_VERSION,
-                f"protocol version {preview(version)} unsupported; this server speaks "
-                f"version {PROTOCOL_VERSION} (an int)",
-            )
-        op = message.get("op")
-        if not isinstance(op, str):
-            raise RequestError(ErrorCode.BAD_REQUEST, f"'op' must be a string, got {preview(op)}")
-        if op not in self._ops:
-            known = ", ".join(self._ops)
-            raise RequestError(ErrorCode.UNKNOWN_OP, f"unknown op {preview(op)}; ops: {known}")
-        session = message.get("session")
-        if session is not None and (
-            not isinstance(session, str) or len(session) > MAX_SESSION_CHARS
-        ):
-            raise RequestError(
-                ErrorCode.BAD_REQUEST,
-                f"'session' must be a string of at most {MAX_SESSION_CHARS} characters",
-            )
-        return session
+        return Answer(reply, request.op, None, None, request.session)
 
-    def _scene(self, message: dict[str, Any]) -> ServedScene:
-        name = message.get("scene")
+    def _scene(self, request: Request) -> ServedScene:
+        name = request.scene
         if name is None:
             if self._only is not None:  # the common case first: one scene, none named
                 return self._only
-            if self.default_scene is None:
-                hosted = ", ".join(self.scenes)
-                raise RequestError(
-                    ErrorCode.UNKNOWN_SCENE,
-                    f"this server hosts several scenes ({hosted}): name one in 'scene'",
-                )
-            name = self.default_scene
-        if not isinstance(name, str):
+            hosted = ", ".join(self.scenes)
             raise RequestError(
-                ErrorCode.BAD_REQUEST, f"'scene' must be a string, got {preview(name)}"
+                ErrorCode.UNKNOWN_SCENE,
+                f"this server hosts several scenes ({hosted}): name one in 'scene'",
             )
         served = self.scenes.get(name)
         if served is None:
@@ -344,58 +292,35 @@ class Dispatcher:
 
     # -- ops ---------------------------------------------------------------------------------
 
-    def _hello(self, message: dict[str, Any]) -> dict[str, Any]:
+    def _hello(self, request: Request) -> dict[str, Any]:
         return {
             "protocol": PROTOCOL_VERSION,
             "server": server_version(),
             "ops": list(self._ops),
             "scenes": list(self.scenes),
             "default_scene": self.default_scene,
-            "session": message.get("session"),
+            "session": request.session,
             "limits": {
                 "max_request_bytes": MAX_REQUEST_BYTES,
                 "max_lattice_points": MAX_LATTICE_POINTS,
             },
         }
 
-    def _describe(self, message: dict[str, Any]) -> Prepared:
-        return Prepared(self._scene(message).encoded_description, {})
+    def _describe(self, request: Request) -> Prepared:
+        return Prepared(self._scene(request).encoded_description, {})
 
-    def _query(self, message: dict[str, Any]) -> Prepared:
-        served = self._scene(message)
-        t = _time(message)
-        dtype = message.get("dtype", "<f4")
-        if dtype not in ARRAY_DTYPES:
-            allowed = list(ARRAY_DTYPES)
-            reason = f"'dtype' must be one of {allowed}, got {preview(dtype)}"
-            raise RequestError(ErrorCode.BAD_REQUEST, reason)
+    def _query(self, request: Request) -> Prepared:
+        served = self._scene(request)
+        t = request.t
+        assert t is not None  # Request.from_wire requires it of a query
         try:
-            fields = served.encoded_query(t, dtype)
+            fields = served.encoded_query(t, request.dtype)
         except OutOfDomain as exc:
             raise RequestError(ErrorCode.OUT_OF_DOMAIN, str(exc)) from None
         return Prepared(fields, {"requested_t": t}, served.name)
 
-    def _stats(self, message: dict[str, Any]) -> dict[str, Any]:
+    def _stats(self, request: Request) -> dict[str, Any]:
         return self._stats_snapshot()
 
-    def _ping(self, message: dict[str, Any]) -> dict[str, Any]:
+    def _ping(self, request: Request) -> dict[str, Any]:
         return {"pong": True, "time": time.time()}
-
-
-def _request_id(message: dict[str, Any]) -> int | None:
-    value = message.get("id")
-    if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < _MAX_REQUEST_ID:
-        return value
-    return None
-
-
-def _time(message: dict[str, Any]) -> float:
-    if "t" not in message:
-        raise RequestError(ErrorCode.BAD_REQUEST, "query needs 't' (seconds, a float)")
-    value = message["t"]
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise RequestError(ErrorCode.BAD_REQUEST, f"'t' must be a number, got {preview(value)}")
-    t = float(value)
-    if not math.isfinite(t):
-        raise RequestError(ErrorCode.INVALID_TIME, f"'t' must be finite, got {t}")
-    return t

@@ -29,11 +29,12 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from membrane_models.manifest import Manifest
 from membrane_models.problems import Problem
 from membrane_models.solution import ExactSolution, MemoryBudgetExceeded, PointFrames
 from membrane_server.runtime import GraphRunner, load_graph
 from membrane_server.scene import DEFAULT_TABLE_MAX_BYTES, Scene, SceneError
-from membrane_server.source import ModelSource, resolve_source
+from membrane_server.source import ModelSource
 
 __all__ = [
     "EXACT_WORKING_FLOOR_BYTES",
@@ -270,9 +271,12 @@ class ExactEvaluator(Evaluator):
         dt: Time step of the grid to precompute (None: compute every frame on demand).
         last_step: Last step of that grid.
         max_bytes: The memory budget.
+        rtol: Truncation tolerance of a series (None: ``membrane_models.exact``'s default);
+            fewer modes are faster and less accurate. Closed forms ignore it.
 
     Raises:
         SceneError: The working memory alone exceeds the budget (the message gives both).
+        ValueError: rtol is not a positive number.
     """
 
     kind = "exact"
@@ -284,10 +288,12 @@ class ExactEvaluator(Evaluator):
         dt: float | None = None,
         last_step: int | None = None,
         max_bytes: int = DEFAULT_TABLE_MAX_BYTES,
+        rtol: float | None = None,
     ) -> None:
         super().__init__(points)
         self.problem = problem
         self.max_bytes = int(max_bytes)
+        self.rtol = rtol
         allowed = max(self.max_bytes, EXACT_WORKING_FLOOR_BYTES)
         self._solution, self._at_time = self._build(problem, allowed)
         self._grid: FrameGrid | None = None
@@ -295,10 +301,11 @@ class ExactEvaluator(Evaluator):
             self._grid = self._precompute(dt, last_step)
 
     def _build(self, problem: Problem, allowed: int) -> tuple[ExactSolution, PointFrames]:
-        from membrane_models.exact import exact_solution  # scipy: only when this kind is used
+        from membrane_models.exact import DEFAULT_RTOL, exact_solution  # scipy: when used
 
+        rtol = DEFAULT_RTOL if self.rtol is None else self.rtol
         try:
-            solution = exact_solution(problem, max_bytes=allowed)
+            solution = exact_solution(problem, rtol, max_bytes=allowed)
             frames = solution.on_points(self.points, max_bytes=allowed - solution.memory_bytes)
         except MemoryBudgetExceeded as exc:
             limit = (
@@ -341,7 +348,7 @@ class ExactEvaluator(Evaluator):
         return self._grid.frames[step] if step is not None and self._grid else self._compute(t)
 
     def info(self) -> dict[str, Any]:
-        return {
+        info = {
             "kind": self.kind,
             "problem": self.problem.name,
             "modes": int(self._solution.n_modes),
@@ -352,66 +359,89 @@ class ExactEvaluator(Evaluator):
             "memory_bytes": self.memory_bytes,
             "max_bytes": self.max_bytes,
         }
-
-
+        if self.rtol is not None:
+            info["rtol"] = self.rtol
+        return info
 
 
 def build_evaluator(
-    scene: Scene, source: ModelSource | None = None, *, threads: int = 1
+    scene: Scene,
+    source: ModelSource,
+    *,
+    threads: int = 1,
+    optimization: str = "all",
+    rtol: float | None = None,
+    on_demand: bool = False,
 ) -> Evaluator:
     """Build the evaluator a scene asks for, on the scene's lattice (loading only what it needs).
 
+    The keywords default to what ``membrane serve`` does; ``membrane tradeoff`` measures the
+    others.
+
     Args:
         scene: The validated scene.
-        source: The scene's model, when already resolved (``resolve_source(scene)``).
+        source: The scene's model, resolved once by the caller (``resolve_source(scene)``); a
+            bare problem with evaluator ``table`` is a table of the exact solution.
         threads: onnxruntime intra-op threads per graph.
+        optimization: onnxruntime graph optimisation level (``runtime.OPTIMIZATION_LEVELS``).
+        rtol: Truncation tolerance of the exact series, wherever the exact solution is used
+            (None: the default).
+        on_demand: Exact evaluator only: compute every frame per query instead of
+            precomputing the frames of the scene's time grid.
 
     Raises:
         SceneError: The model cannot serve this scene (missing part-graphs, time domain too
             short, lattice of the wrong dimension, table too large, ...).
         ManifestError: A graph file does not match its manifest's sha256.
+        ValueError: An unknown optimisation level, or rtol not a positive number.
     """
-    source = source or resolve_source(scene)
     points = scene.lattice.coordinates(source.spatial_bounds)
     if scene.evaluator == "exact":
-        return _exact_evaluator(scene, source, points)
-    if scene.evaluator == "table":
-        inner = _direct_evaluator(scene, source, points, threads)
-        return TableEvaluator(inner, scene.dt, scene.last_step, scene.table_max_bytes)
-    return _direct_evaluator(scene, source, points, threads, kind=scene.evaluator)
-
-
-def _direct_evaluator(
-    scene: Scene,
-    source: ModelSource,
-    points: np.ndarray,
-    threads: int,
-    kind: str | None = None,
-) -> Evaluator:
-    """A network/separable evaluator (kind None: the fastest the model allows), or exact."""
+        dt, last_step = (None, None) if on_demand else (scene.dt, scene.last_step)
+        return ExactEvaluator(
+            source.problem, points, dt, last_step, max_bytes=scene.table_max_bytes, rtol=rtol
+        )
     manifest = source.manifest
-    if manifest is None:  # a table of the exact solution: the table holds the frames
-        return ExactEvaluator(source.problem, points, max_bytes=scene.table_max_bytes)
-    _check_time_domain(scene, source)
+    inner: Evaluator
+    if manifest is None:  # a bare problem: only a table of its exact solution (frames in it)
+        if scene.evaluator != "table":
+            raise SceneError(
+                f"scene {scene.name}: evaluator: {scene.evaluator!r} needs a trained model; "
+                f"{source.problem.name} alone is served by 'exact' or 'table'"
+            )
+        inner = ExactEvaluator(source.problem, points, max_bytes=scene.table_max_bytes, rtol=rtol)
+    else:
+        _check_time_domain(scene, source)
+        kind = None if scene.evaluator == "table" else scene.evaluator
+        inner = _network_evaluator(scene, manifest, points, kind, threads, optimization)
+    if scene.evaluator == "table":
+        return TableEvaluator(inner, scene.dt, scene.last_step, scene.table_max_bytes)
+    return inner
+
+
+def _network_evaluator(
+    scene: Scene,
+    manifest: Manifest,
+    points: np.ndarray,
+    kind: str | None,
+    threads: int,
+    optimization: str,
+) -> Evaluator:
+    """A trained model's network or separable evaluator (kind None: the fastest it allows)."""
     if kind is None:
         kind = "separable" if manifest.separable else "network"
+
+    def graph(role: str) -> GraphRunner:
+        return load_graph(manifest, role, threads, optimization)
+
     if kind == "separable":
         if not manifest.separable:
             raise SceneError(
                 f"scene {scene.name}: evaluator: model {manifest.name!r} has no space/time "
                 "part-graphs; use 'network' or 'table'"
             )
-        space = load_graph(manifest, "space", threads)
-        time_graph = load_graph(manifest, "time", threads)
-        return SeparableEvaluator(space, time_graph, manifest.bias, points)
-    return NetworkEvaluator(load_graph(manifest, "full", threads), points)
-
-
-def _exact_evaluator(scene: Scene, source: ModelSource, points: np.ndarray) -> ExactEvaluator:
-    """The exact solution, its grid frames precomputed when they fit in the table budget."""
-    return ExactEvaluator(
-        source.problem, points, scene.dt, scene.last_step, max_bytes=scene.table_max_bytes
-    )
+        return SeparableEvaluator(graph("space"), graph("time"), manifest.bias, points)
+    return NetworkEvaluator(graph("full"), points)
 
 
 def _check_time_domain(scene: Scene, source: ModelSource) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Hashable
 
-from membrane_client.protocol import EncodedFields
+from membrane_server.reply_encoding import EncodedFields
 
 __all__ = ["DEFAULT_REPLY_CACHE_BYTES", "ReplyCache"]
 

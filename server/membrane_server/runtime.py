@@ -16,18 +16,38 @@ import onnxruntime as ort
 from membrane_models.manifest import Manifest
 from membrane_server.scene import SceneError
 
-__all__ = ["GraphRunner", "load_graph", "session_options"]
+__all__ = ["OPTIMIZATION_LEVELS", "GraphRunner", "load_graph", "session_options"]
 
 logger = logging.getLogger(__name__)
 
+# onnxruntime's graph optimisation levels by name; the server's own is "all".
+_LEVELS = {
+    "all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL,
+    "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED,
+    "basic": ort.GraphOptimizationLevel.ORT_ENABLE_BASIC,
+    "disabled": ort.GraphOptimizationLevel.ORT_DISABLE_ALL,
+}
+OPTIMIZATION_LEVELS = tuple(_LEVELS)
 
-def session_options(threads: int = 1) -> ort.SessionOptions:
-    """Session options for answering one query at a time with low, steady latency."""
+
+def session_options(threads: int = 1, optimization: str = "all") -> ort.SessionOptions:
+    """Session options for answering one query at a time with low, steady latency.
+
+    Args:
+        threads: Intra-op threads.
+        optimization: Graph optimisation level, one of OPTIMIZATION_LEVELS.
+
+    Raises:
+        ValueError: An unknown optimisation level.
+    """
+    if optimization not in _LEVELS:
+        known = ", ".join(OPTIMIZATION_LEVELS)
+        raise ValueError(f"graph optimisation level {optimization!r}: expected one of {known}")
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
     options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    options.graph_optimization_level = _LEVELS[optimization]
     options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     options.add_session_config_entry("session.inter_op.allow_spinning", "0")
     options.log_severity_level = 3  # warnings from ORT's own graph passes are noise here
@@ -42,6 +62,7 @@ class GraphRunner:
         input_name: Expected input name (checked), or None to take the graph's only input.
         output_name: Expected output name (checked), or None to take the graph's only output.
         threads: onnxruntime intra-op threads.
+        optimization: onnxruntime graph optimisation level (one of OPTIMIZATION_LEVELS).
     """
 
     def __init__(
@@ -50,11 +71,13 @@ class GraphRunner:
         input_name: str | None = None,
         output_name: str | None = None,
         threads: int = 1,
+        optimization: str = "all",
     ) -> None:
         self.path = path
+        options = session_options(threads, optimization)
         try:
             self._session = ort.InferenceSession(
-                str(path), sess_options=session_options(threads), providers=["CPUExecutionProvider"]
+                str(path), sess_options=options, providers=["CPUExecutionProvider"]
             )
         except Exception as exc:  # onnxruntime raises its own untyped errors for bad files
             message = f"model graph {path.name}: onnxruntime cannot load it: {exc}"
@@ -80,10 +103,13 @@ def _only_name(path: Path, what: str, nodes: list[Any], expected: str | None) ->
     return str(names[0])
 
 
-def load_graph(manifest: Manifest, role: str, threads: int = 1) -> GraphRunner:
-    """Verify one graph of a model against its manifest's sha256, then load it."""
+def load_graph(
+    manifest: Manifest, role: str, threads: int = 1, optimization: str = "all"
+) -> GraphRunner:
+    """Verify one graph of a model against its manifest's sha256, then load it (with
+    ``threads`` intra-op threads at graph optimisation level ``optimization``)."""
     path = manifest.verify(role)
     spec = manifest.graphs[role]
-    runner = GraphRunner(path, spec.input, spec.output, threads=threads)
+    runner = GraphRunner(path, spec.input, spec.output, threads, optimization)
     logger.info("loaded %s graph of model %s (%s)", role, manifest.name, path.name)
     return runner

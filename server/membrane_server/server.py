@@ -55,6 +55,7 @@ logger = logging.getLogger(__name__)
 class BindError(UserError):
     """The server cannot listen where it was told (address in use, no such interface, ...)."""
 
+
 # How long the loop waits for a request before it looks at the stop flag again.
 _POLL_MS = 50
 # At shutdown, how long replies already handed to ZeroMQ may take to leave (a large reply to a

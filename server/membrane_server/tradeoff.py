@@ -26,24 +26,19 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
 from membrane_client.client import Client
+from membrane_errors import MembraneError
 from membrane_models.exact import exact_solution
 from membrane_models.manifest import Manifest
 from membrane_models.problems import make_problem
 from membrane_models.zoo_index import list_models, resolve_model
 from membrane_server.dispatch import ServedScene
-from membrane_server.evaluators import (
-    Evaluator,
-    ExactEvaluator,
-    NetworkEvaluator,
-    SeparableEvaluator,
-    TableEvaluator,
-)
-from membrane_server.runtime import GraphRunner, session_options
+from membrane_server.evaluators import build_evaluator
+from membrane_server.runtime import OPTIMIZATION_LEVELS
 from membrane_server.scene import Scene, SceneError, load_scene, scene_from_dict
 from membrane_server.source import ModelSource, resolve_source
 
@@ -75,7 +70,6 @@ LATTICES: dict[str, tuple[tuple[int, ...], ...]] = {
     "rope-plucked": ((20,), (100,), (1000,)),
     "membrane": ((5, 5), (20, 20), (100, 100)),
 }
-OPTIMIZATION_LEVELS = ("all", "extended", "basic", "disabled")
 # Knob variants, measured on the study's lattice size (the middle one) only.
 _THREAD_VARIANTS = (2,)
 _OPTIMIZATION_VARIANTS = ("basic", "disabled")
@@ -83,7 +77,7 @@ _RTOL_VARIANTS = (1e-3, 1e-6)
 _HOST_TIMEOUT_S = 600.0
 
 
-class TradeoffError(RuntimeError):
+class TradeoffError(MembraneError):
     """The measuring machinery itself failed (not a case that cannot be served)."""
 
 
@@ -131,13 +125,6 @@ class Case:
     def lattice_label(self) -> str:
         """``100`` or ``20x20``."""
         return "x".join(str(n) for n in self.lattice)
-
-    @property
-    def is_default_build(self) -> bool:
-        """True when ``membrane serve`` itself builds this case (no knob it lacks)."""
-        table_of_exact = self.model is None and self.evaluator == "table"
-        tuned = self.optimization != "all" or self.rtol is not None or self.on_demand
-        return not (tuned or table_of_exact)
 
     @property
     def problem(self) -> str:
@@ -274,98 +261,39 @@ def _knob_variants(
 # ---------------------------------------------------------------------------------------------
 
 
-class _TunedGraph:
-    """An onnxruntime graph with the server's session options at another optimisation level.
-
-    It answers ``run`` like ``runtime.GraphRunner``, which the evaluators call.
-    """
-
-    def __init__(self, manifest: Manifest, role: str, threads: int, level: str) -> None:
-        import onnxruntime as ort
-
-        levels = {
-            "all": ort.GraphOptimizationLevel.ORT_ENABLE_ALL,
-            "extended": ort.GraphOptimizationLevel.ORT_ENABLE_EXTENDED,
-            "basic": ort.GraphOptimizationLevel.ORT_ENABLE_BASIC,
-            "disabled": ort.GraphOptimizationLevel.ORT_DISABLE_ALL,
-        }
-        options = session_options(threads)
-        options.graph_optimization_level = levels[level]
-        path = manifest.verify(role)
-        self._session = ort.InferenceSession(
-            str(path), sess_options=options, providers=["CPUExecutionProvider"]
-        )
-        self._input = manifest.graphs[role].input
-        self._output = manifest.graphs[role].output
-
-    def run(self, values: np.ndarray) -> np.ndarray:
-        feed = {self._input: np.ascontiguousarray(values, dtype=np.float32)}
-        return np.asarray(self._session.run([self._output], feed)[0])
-
-
-class _TruncatedExact(Evaluator):
-    """The exact series truncated at a chosen relative tolerance (fewer modes, faster)."""
-
-    kind = "exact"
-
-    def __init__(self, source: ModelSource, points: np.ndarray, rtol: float) -> None:
-        super().__init__(points)
-        self._solution = exact_solution(source.problem, rtol)
-        self._at_time = self._solution.on_points(self.points)
-        self._rtol = rtol
-
-    def frame(self, t: float) -> np.ndarray:
-        return np.asarray(self._at_time(t), dtype=np.float64).reshape(-1)
-
-    def info(self) -> dict[str, Any]:
-        return {"kind": self.kind, "modes": int(self._solution.n_modes), "rtol": self._rtol}
-
-
 def build_case(case: Case) -> ServedScene:
-    """The served scene of a case: as ``membrane serve`` builds it where it can, else by hand.
-
-    By hand: a table of exact frames (a bare problem with the table evaluator), the exact
-    solution computed per query (optionally truncated), or graphs at another onnxruntime
-    optimisation level.
+    """The served scene of a case, built by the server's own ``build_evaluator`` with the
+    case's knobs (``membrane serve`` builds the cases without knobs the same way).
 
     Raises:
         SceneError, ManifestError: The case cannot be served (the message says why).
+        ValueError: A knob out of range (an unknown optimisation level, rtol <= 0).
     """
     scene = scene_from_dict(case.scene_data())
-    if case.is_default_build:
-        return ServedScene.load(scene, threads=case.threads)
     source = _source(case, scene)
-    points = scene.lattice.coordinates(source.spatial_bounds)
-    evaluator = _evaluator_by_hand(case, scene, source, points)
+    try:
+        evaluator = build_evaluator(
+            scene,
+            source,
+            threads=case.threads,
+            optimization=case.optimization,
+            rtol=case.rtol,
+            on_demand=case.on_demand,
+        )
+    except SceneError as exc:  # as ServedScene.load names the scene
+        raise scene.error(exc) from None
     return ServedScene(scene, evaluator, source)
 
 
 def _source(case: Case, scene: Scene) -> ModelSource:
+    """The case's model, resolved as the server resolves a scene's.
+
+    The exact reference is the bare problem, whatever the evaluator: a scene file can only
+    name it with evaluator ``exact`` (with ``table`` a problem's name means its zoo model).
+    """
     if case.model is None:
-        return ModelSource(problem=make_problem(case.problem))
+        return resolve_source(scene.model_copy(update={"evaluator": "exact"}))
     return resolve_source(scene)
-
-
-def _evaluator_by_hand(
-    case: Case, scene: Scene, source: ModelSource, points: np.ndarray
-) -> Evaluator:
-    manifest = source.manifest
-    if manifest is None:  # every frame computed when asked: per query, or once by the table
-        exact: Evaluator = (
-            ExactEvaluator(source.problem, points)
-            if case.rtol is None
-            else _TruncatedExact(source, points, case.rtol)
-        )
-        if case.evaluator == "table":
-            return TableEvaluator(exact, scene.dt, scene.last_step, scene.table_max_bytes)
-        return exact
-
-    def graph(role: str) -> GraphRunner:
-        return cast(GraphRunner, _TunedGraph(manifest, role, case.threads, case.optimization))
-
-    if case.evaluator == "separable":
-        return SeparableEvaluator(graph("space"), graph("time"), manifest.bias, points)
-    return NetworkEvaluator(graph("full"), points)
 
 
 def _host_main(connection: multiprocessing.connection.Connection) -> None:

@@ -1,0 +1,33 @@
+"""A Client transport that hands each request to a Dispatcher in this process: no sockets.
+
+For tests of the client against the real dispatcher, and for embedding a scene in a Python
+simulator loop without a server process::
+
+    from membrane_client import Client
+    from membrane_server.dispatch import Dispatcher, ServedScene
+    from membrane_server.in_process import InProcessTransport
+
+    transport = InProcessTransport(Dispatcher([ServedScene.load("rope")]))
+    with Client("in-process://rope", transport=transport) as client:
+        frame = client.query(0.25)
+"""
+
+from __future__ import annotations
+
+from membrane_server.dispatch import Dispatcher
+
+__all__ = ["InProcessTransport"]
+
+
+class InProcessTransport:
+    """``membrane_client.transport.Transport`` over a Dispatcher's ``handle``."""
+
+    def __init__(self, dispatcher: Dispatcher) -> None:
+        self.dispatcher = dispatcher
+
+    def round_trip(self, payload: bytes) -> bytes:
+        """The dispatcher's reply to ``payload`` (it never raises: errors are replies)."""
+        return self.dispatcher.handle([payload]).reply
+
+    def close(self) -> None:
+        """Nothing to release: the dispatcher belongs to the caller."""
