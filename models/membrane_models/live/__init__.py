@@ -1,0 +1,48 @@
+"""Live engines: the tissue answers loads and probes, step by step.
+
+``ModalEngine`` is the exact modal engine for the string and the membrane (``engine``); every
+live engine offers the ``LiveEngine`` interface (``interface``): a state in, loads and probes
+in; a new state, the frame and the probes' readings out. Bad input raises a ``LiveError`` (a
+``membrane_errors.UserError``) and changes nothing. docs/LIVE.md has the conventions and the
+measured figures.
+"""
+
+from membrane_models.live.engine import ModalEngine, ModalState
+from membrane_models.live.errors import (
+    InvalidEngineSettings,
+    InvalidLoad,
+    InvalidProbe,
+    InvalidShape,
+    InvalidState,
+    LiveError,
+)
+from membrane_models.live.film import film_frames, film_load
+from membrane_models.live.interface import (
+    Hold,
+    LiveEngine,
+    Load,
+    Probe,
+    ProbeReading,
+    Start,
+    StepResult,
+)
+
+__all__ = [
+    "Hold",
+    "InvalidEngineSettings",
+    "InvalidLoad",
+    "InvalidProbe",
+    "InvalidShape",
+    "InvalidState",
+    "LiveEngine",
+    "LiveError",
+    "Load",
+    "ModalEngine",
+    "ModalState",
+    "Probe",
+    "ProbeReading",
+    "Start",
+    "StepResult",
+    "film_frames",
+    "film_load",
+]

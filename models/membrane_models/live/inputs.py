@@ -1,0 +1,156 @@
+"""Checking what a caller sends: loads, probes and shapes, before anything is computed.
+
+Messages quote numbers with ``%.6g`` and types by name only, so that nothing a peer sends is
+formatted unbounded into an error. Counts are bounded: a step costs at most ``MAX_LOADS`` loads
+and ``MAX_PROBES`` probes (the contact problem is solved exactly, by enumeration at worst).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from membrane_models.live.errors import InvalidLoad, InvalidProbe, LiveError
+from membrane_models.live.interface import Load, LoadLike, Probe, ProbeLike
+
+__all__ = ["MAX_LOADS", "MAX_PROBES", "inside_domain", "parse_loads", "parse_probes"]
+
+MAX_LOADS = 64
+MAX_PROBES = 8
+_LOAD_KEYS = frozenset({"at", "force", "radius"})
+_PROBE_KEYS = frozenset({"at", "depth", "radius"})
+
+
+def parse_loads(loads: Sequence[LoadLike], dims: int) -> tuple[Load, ...]:
+    """``loads`` as checked ``Load`` objects (finite force, radius >= 0, centre in the domain).
+
+    Raises:
+        InvalidLoad: what is wrong, and with which load.
+    """
+    items = _bounded(loads, MAX_LOADS, "loads", InvalidLoad)
+    out = []
+    for index, item in enumerate(items):
+        if (
+            type(item) is Load
+            and _clean(item.at, dims, item.radius, item.radius)
+            and type(item.force) is float
+            and math.isfinite(item.force)
+            and inside_domain(item.at)
+        ):
+            out.append(item)
+            continue
+        fields = _fields(item, Load, _LOAD_KEYS, f"load {index}", InvalidLoad)
+        at = _point(fields["at"], dims, f"load {index}", InvalidLoad)
+        force = _number(fields["force"], f"load {index} force", InvalidLoad)
+        radius = _radius(fields["radius"], f"load {index}", InvalidLoad)
+        if not inside_domain(at):
+            raise InvalidLoad(f"load {index}: at {_coords(at)} lies outside the unit domain")
+        out.append(Load(at, force, radius))
+    return tuple(out)
+
+
+def parse_probes(probes: Sequence[ProbeLike], dims: int) -> tuple[Probe, ...]:
+    """``probes`` as checked ``Probe`` objects (depth >= 0, radius >= 0; any finite centre).
+
+    Raises:
+        InvalidProbe: what is wrong, and with which probe.
+    """
+    items = _bounded(probes, MAX_PROBES, "probes", InvalidProbe)
+    out = []
+    for index, item in enumerate(items):
+        if type(item) is Probe and _clean(item.at, dims, item.depth, item.radius):
+            out.append(item)  # the haptic loop's case: nothing to convert
+            continue
+        fields = _fields(item, Probe, _PROBE_KEYS, f"probe {index}", InvalidProbe)
+        at = _point(fields["at"], dims, f"probe {index}", InvalidProbe)
+        depth = _number(fields["depth"], f"probe {index} depth", InvalidProbe)
+        if depth < 0.0:
+            raise InvalidProbe(
+                f"probe {index}: depth must be >= 0 (the tip's face below the rest surface), "
+                f"got {depth:.6g}"
+            )
+        radius = _radius(fields["radius"], f"probe {index}", InvalidProbe)
+        out.append(Probe(at, depth, radius))
+    return tuple(out)
+
+
+def inside_domain(at: tuple[float, ...]) -> bool:
+    """Whether a point lies in the closed unit interval or square."""
+    return all(0.0 <= x <= 1.0 for x in at)
+
+
+def _clean(at: object, dims: int, nonnegative: object, radius: object) -> bool:
+    """A dataclass input already in canonical form: float fields, finite, >= 0 where needed."""
+    return (
+        type(at) is tuple
+        and len(at) == dims
+        and all(type(x) is float and math.isfinite(x) for x in at)
+        and type(nonnegative) is float
+        and type(radius) is float
+        and 0.0 <= nonnegative < math.inf
+        and 0.0 <= radius < math.inf
+    )
+
+
+def _bounded(
+    items: Sequence[object], limit: int, what: str, error: type[LiveError]
+) -> Sequence[object]:
+    if isinstance(items, str | bytes | Mapping) or not isinstance(items, Sequence):
+        raise error(f"{what} must be a list, got {type(items).__name__}")
+    if len(items) > limit:
+        raise error(f"at most {limit} {what} per step, got {len(items)}")
+    return items
+
+
+def _fields(
+    item: object,
+    kind: type[Load] | type[Probe],
+    keys: frozenset[str],
+    what: str,
+    error: type[LiveError],
+) -> Mapping[str, object]:
+    if isinstance(item, kind):
+        return {key: getattr(item, key) for key in keys}
+    if not isinstance(item, Mapping):
+        raise error(f"{what} must be a map with keys {sorted(keys)}, got {type(item).__name__}")
+    names = set(item)
+    if names != keys:
+        missing = sorted(str(k) for k in keys - names)
+        extra = len(names - keys)
+        raise error(
+            f"{what} needs exactly the keys {sorted(keys)} (missing {missing}, {extra} extra)"
+        )
+    return item
+
+
+def _number(value: object, what: str, error: type[LiveError]) -> float:
+    if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
+        raise error(f"{what} must be a number, got {type(value).__name__}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise error(f"{what} must be finite, got {number}")
+    return number
+
+
+def _point(value: object, dims: int, what: str, error: type[LiveError]) -> tuple[float, ...]:
+    if isinstance(value, np.ndarray) and value.size <= dims:
+        value = value.tolist()
+    if dims == 1 and not isinstance(value, Sequence):
+        return (_number(value, f"{what} at", error),)
+    if isinstance(value, str | bytes) or not isinstance(value, Sequence) or len(value) != dims:
+        raise error(f"{what}: at must be {dims} coordinate{'s' if dims > 1 else ''}")
+    return tuple(_number(x, f"{what} at", error) for x in value)
+
+
+def _radius(value: object, what: str, error: type[LiveError]) -> float:
+    radius = _number(value, f"{what} radius", error)
+    if radius < 0.0:
+        raise error(f"{what}: radius must be >= 0, got {radius:.6g}")
+    return radius
+
+
+def _coords(at: tuple[float, ...]) -> str:
+    return "(" + ", ".join(f"{x:.6g}" for x in at) + ")"

@@ -1,0 +1,157 @@
+"""What every live engine offers: state in, loads and probes in; state, frame and probes out.
+
+A live engine is stateful in the physics but not in the object: ``step`` takes a state and
+returns a new one, leaving the old one valid. A server can therefore keep the last reply and
+answer a retried step without applying it twice, and a refused step (bad input) leaves nothing
+half done. The exact modal engine (``engine.ModalEngine``) implements this; FEM modes or a
+learned Koopman model (encode once, step K, decode) fit the same shape.
+
+Sign and units: problem units of the engine's problem. A load's ``force`` > 0 pushes the tissue
+along +axis (the sign of f in the problem's equation); a probe presses along -axis, and its
+reported contact force is >= 0 (the tissue is pushed along -axis, the tool feels it along
++axis). Footprints are Gaussian, normalised over the line or the plane (see ``footprint``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Generic, Literal, Protocol, TypeVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "Hold",
+    "LiveEngine",
+    "Load",
+    "LoadLike",
+    "Probe",
+    "ProbeLike",
+    "ProbeReading",
+    "Start",
+    "StepResult",
+]
+
+FloatArray = NDArray[np.float64]
+Hold = Literal["zoh", "foh"]
+StateT = TypeVar("StateT")
+
+
+@dataclass(frozen=True)
+class Load:
+    """A Gaussian pressure of total force ``force`` centred at ``at``.
+
+    Membrane: F / (pi r^2) exp(-rho^2 / r^2); string: F / (sqrt(pi) r) exp(-x^2 / r^2), r = 0 a
+    point force (string only). The part of the Gaussian beyond the clamped edges acts on the
+    support, not on the tissue.
+    """
+
+    at: tuple[float, ...]
+    force: float
+    radius: float
+
+
+@dataclass(frozen=True)
+class Probe:
+    """A rigid tip whose face is ``depth`` >= 0 below the rest surface, pressing along -axis.
+
+    Its footprint is a load's Gaussian of radius ``radius`` (> 0 on a membrane). A centre
+    outside the domain touches nothing.
+    """
+
+    at: tuple[float, ...]
+    depth: float
+    radius: float
+
+
+LoadLike = Load | Mapping[str, object]
+ProbeLike = Probe | Mapping[str, object]
+
+
+@dataclass(frozen=True)
+class ProbeReading:
+    """What a probe measured at the end of a step.
+
+    Attributes:
+        force: contact force F >= 0 (pushes the tissue along -axis).
+        displacement: z-bar, the footprint-weighted displacement at the end of the step.
+        gap: -(z-bar + depth) >= 0; 0 in contact.
+        compliance: c, the one-step compliance under the tip (displacement per unit force).
+        in_contact: F > 0.
+        outside: the centre is outside the domain: nothing touched, the rest NaN.
+    """
+
+    force: float
+    displacement: float
+    gap: float
+    compliance: float
+    in_contact: bool
+    outside: bool = False
+
+
+@dataclass(frozen=True)
+class StepResult(Generic[StateT]):
+    """One step's answer.
+
+    Attributes:
+        state: the state at the end of the step.
+        frame: displacements on the lattice (x-major, flattened), or None when not asked.
+        probes: one reading per probe, in the order given.
+        work: work done on the kept modes by loads and probes over the step (zero-order hold;
+            None under first-order hold).
+    """
+
+    state: StateT
+    frame: FloatArray | None
+    probes: tuple[ProbeReading, ...]
+    work: float | None
+
+
+@dataclass(frozen=True)
+class Start(Generic[StateT]):
+    """An initial state and how well the modes carry the shapes asked for.
+
+    Attributes:
+        state: the state at t = 0.
+        displacement_residual, velocity_residual: ||given - projected|| / ||given|| on the
+            lattice (0 for a zero shape).
+    """
+
+    state: StateT
+    displacement_residual: float
+    velocity_residual: float
+
+
+class LiveEngine(Protocol[StateT]):
+    """A stateful engine beside the film evaluators (see the module docstring)."""
+
+    @property
+    def spatial_dims(self) -> int:
+        """1 (string) or 2 (membrane)."""
+
+    @property
+    def lattice_shape(self) -> tuple[int, ...]:
+        """Points per axis of the frames (x-major)."""
+
+    @property
+    def dt(self) -> float:
+        """The step, in problem time units."""
+
+    def start(
+        self, displacement: ArrayLike | None = None, velocity: ArrayLike | None = None
+    ) -> Start[StateT]:
+        """The state at t = 0: at rest, or from shapes given on the lattice."""
+
+    def step(
+        self,
+        state: StateT,
+        loads: Sequence[LoadLike] = (),
+        probes: Sequence[ProbeLike] = (),
+        *,
+        frame: bool = True,
+    ) -> StepResult[StateT]:
+        """Advance one step under ``loads`` and ``probes``; bad input raises a ``LiveError``."""
+
+    def frame(self, state: StateT) -> FloatArray:
+        """The displacements of ``state`` on the lattice (x-major, flattened)."""

@@ -1,0 +1,186 @@
+"""Loads {at, force, radius}: static limits against closed forms, linearity, and bad input."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+from scipy.integrate import quad
+
+from membrane_models.live import InvalidLoad, Load, ModalEngine, ModalState
+from membrane_models.live.inputs import MAX_LOADS
+from membrane_models.problems import make_problem
+from membrane_models.spectrum import gaussian_sine_integrals
+
+FloatArray = NDArray[np.float64]
+STRING = make_problem("string-forced")  # c = 10
+MEMBRANE = make_problem("membrane-forced")  # c = 5
+
+
+def _string_green(x: FloatArray, a: float, c: float) -> FloatArray:
+    return np.where(x <= a, x * (1.0 - a), a * (1.0 - x)) / c**2
+
+
+def _poisson_sum(at: tuple[float, float], radius: float, n: int, modes: int = 240) -> FloatArray:
+    """The membrane's static deflection per unit force on an n x n lattice, as a mode sum."""
+    m = np.arange(1, modes + 1)
+    scale = 2.0 / (math.sqrt(math.pi) * radius)
+    sx = scale * gaussian_sine_integrals(m, at[0], 1.0 / radius**2)
+    sy = scale * gaussian_sine_integrals(m, at[1], 1.0 / radius**2)
+    weights = 1.0 / ((MEMBRANE.c * math.pi) ** 2 * (m[:, None] ** 2 + m[None, :] ** 2))
+    table = np.sin(np.pi * np.outer(np.linspace(0.0, 1.0, n), m))
+    return np.asarray((table @ (np.outer(sx, sy) * weights) @ table.T).reshape(-1))
+
+
+def _held(engine: ModalEngine, loads: list[Any], steps: int = 300) -> FloatArray:
+    state = engine.start().state
+    for _ in range(steps):
+        state = engine.step(state, loads, frame=False).state
+    return engine.frame(state)
+
+
+def _relative(a: FloatArray, b: FloatArray) -> float:
+    return float(np.abs(a - b).max() / np.abs(b).max())
+
+
+def test_string_point_load_held_gives_the_closed_form_static_deflection() -> None:
+    truth = 0.3 * _string_green(np.linspace(0.0, 1.0, 100), 0.37, STRING.c)
+    # dt = 0.05 keeps 2 modes (w dt <= pi): the correction carries the rest
+    corrected = ModalEngine(STRING, 100, 0.05, damping=0.7)
+    assert corrected.modes.count == 2
+    assert _relative(_held(corrected, [Load((0.37,), 0.3, 0.0)]), truth) < 1e-9
+    bare = ModalEngine(STRING, 100, 0.05, damping=0.7, static_correction=False)
+    assert _relative(_held(bare, [Load((0.37,), 0.3, 0.0)]), truth) > 0.05
+
+
+def test_string_gaussian_load_is_normalised_to_its_total_force() -> None:
+    """Static deflection = int G(x, s) F g(s) ds over the domain, g normalised over the line."""
+    x0, radius, force = 0.9, 0.08, 0.4  # near an edge: part of the Gaussian is on the support
+    x = np.linspace(0.0, 1.0, 100)
+
+    def deflection(point: float) -> float:
+        def integrand(s: float) -> float:
+            g = math.exp(-((s - x0) ** 2) / radius**2) / (math.sqrt(math.pi) * radius)
+            return float(_string_green(np.array(point), s, STRING.c)) * g
+
+        return force * quad(integrand, 0.0, 1.0, points=[point, x0], epsabs=1e-15)[0]
+
+    truth = np.array([deflection(p) for p in x])
+    engine = ModalEngine(STRING, 100, 0.05, damping=0.7)
+    assert _relative(_held(engine, [Load((x0,), force, radius)]), truth) < 1e-8
+
+
+@pytest.mark.parametrize(
+    ("at", "bound"),
+    [((0.3, 0.6), 1e-9), ((0.5, 0.5), 1e-9), ((0.97, 0.04), 1e-4)],  # a corner: edges cut it
+)
+def test_membrane_load_held_gives_its_poisson_sum(at: tuple[float, float], bound: float) -> None:
+    truth = 0.2 * _poisson_sum(at, 0.05, 20, modes=1024)
+    corrected = ModalEngine(MEMBRANE, 20, 0.05, damping=0.7)  # 8 modes stepped
+    assert _relative(_held(corrected, [Load(at, 0.2, 0.05)]), truth) < bound
+    bare = ModalEngine(MEMBRANE, 20, 0.05, damping=0.7, static_correction=False)
+    assert _relative(_held(bare, [Load(at, 0.2, 0.05)]), truth) > 0.1
+
+
+def test_time_averaged_undamped_response_is_the_static_one() -> None:
+    truth = _string_green(np.linspace(0.0, 1.0, 100), 0.61, STRING.c)
+    engine = ModalEngine(STRING, 100, 0.0123)
+    state = engine.start().state
+    total = np.zeros(100)
+    steps = 20000
+    for _ in range(steps):
+        state = engine.step(state, [Load((0.61,), 1.0, 0.0)], frame=False).state
+        total += engine.frame(state)
+    assert _relative(total / steps, truth) < 1e-3
+
+
+def test_larger_than_the_domain_load_presses_mostly_on_the_support() -> None:
+    radius = 5.0
+    truth = 0.5 * _poisson_sum((0.5, 0.5), radius, 20, modes=1024)
+    engine = ModalEngine(MEMBRANE, 20, 0.05, damping=0.7)
+    assert _relative(_held(engine, [Load((0.5, 0.5), 0.5, radius)]), truth) < 1e-5
+
+
+def test_loads_superpose() -> None:
+    engine = ModalEngine(MEMBRANE, 20, 0.004)
+    first = [Load((0.2, 0.7), 0.3, 0.05)]
+    second = [{"at": [0.6, 0.45], "force": -0.2, "radius": 0.1}]
+    both = _held(engine, [*first, *second], 50)
+    apart = _held(engine, first, 50) + _held(engine, second, 50)
+    np.testing.assert_allclose(both, apart, rtol=0, atol=1e-12 * np.abs(both).max())
+
+
+def test_first_order_hold_ramps_from_the_last_steps_loads() -> None:
+    """Under FOH a load held from step 1 ramps up over the first step only: from then on the
+    two holds differ by the response to that first ramp (a free vibration), not drifting."""
+    load = [Load((0.4, 0.4), 0.1, 0.05)]
+    zoh, foh = ModalEngine(MEMBRANE, 20, 0.01), ModalEngine(MEMBRANE, 20, 0.01, hold="foh")
+    z, f = zoh.start().state, foh.start().state
+    for _ in range(30):
+        z, f = zoh.step(z, load).state, foh.step(f, load).state
+    # the FOH start lags by half a step of force: the energy difference is small, not zero
+    diff = zoh.energy(z) - foh.energy(f)
+    assert diff != 0.0
+    assert abs(diff) < 0.2 * zoh.energy(z)
+
+
+BAD_LOADS: list[tuple[Any, str]] = [
+    ({"at": [0.5, 0.5], "force": math.nan, "radius": 0.05}, "finite"),
+    ({"at": [0.5, 0.5], "force": math.inf, "radius": 0.05}, "finite"),
+    ({"at": [0.5, 0.5], "force": -math.inf, "radius": 0.05}, "finite"),
+    ({"at": [0.5, math.nan], "force": 1.0, "radius": 0.05}, "finite"),
+    ({"at": [0.5, 0.5], "force": 1.0, "radius": 0.0}, "logarithmically singular"),
+    ({"at": [0.5, 0.5], "force": 1.0, "radius": 1e-3}, "smallest"),
+    ({"at": [0.5, 0.5], "force": 1.0, "radius": -0.1}, ">= 0"),
+    ({"at": [1.2, 0.5], "force": 1.0, "radius": 0.05}, "outside"),
+    ({"at": [0.5], "force": 1.0, "radius": 0.05}, "2 coordinates"),
+    ({"at": [0.5, 0.5], "force": "1", "radius": 0.05}, "number"),
+    ({"at": [0.5, 0.5], "force": True, "radius": 0.05}, "number"),
+    ({"at": [0.5, 0.5], "force": 1.0}, "keys"),
+    ({"at": [0.5, 0.5], "force": 1.0, "radius": 0.05, "extra": 1}, "keys"),
+    ([0.5, 0.5, 1.0], "map"),
+    (Load((0.5, 0.5), math.nan, 0.05), "finite"),
+]
+
+
+@pytest.mark.parametrize(("load", "message"), BAD_LOADS)
+def test_bad_loads_raise_and_leave_the_state_intact(load: Any, message: str) -> None:
+    engine = ModalEngine(MEMBRANE, 20, 0.01)
+    state = engine.step(engine.start().state, [Load((0.3, 0.3), 0.1, 0.05)]).state
+    before = (state.q.copy(), state.v.copy(), state.step)
+    with pytest.raises(InvalidLoad, match=message):
+        engine.step(state, [Load((0.6, 0.6), 0.1, 0.05), load])
+    assert _unchanged(state, before)
+    # the same state still steps, exactly as a fresh copy would
+    again = engine.step(state, [Load((0.6, 0.6), 0.1, 0.05)])
+    assert again.state.step == state.step + 1
+
+
+def _unchanged(state: ModalState, before: tuple[FloatArray, FloatArray, int]) -> bool:
+    q, v, step = before
+    return bool(np.array_equal(state.q, q) and np.array_equal(state.v, v)) and state.step == step
+
+
+def test_too_many_loads_and_a_string_radius_below_the_smallest() -> None:
+    engine = ModalEngine(MEMBRANE, 20, 0.01)
+    state = engine.start().state
+    with pytest.raises(InvalidLoad, match=f"at most {MAX_LOADS}"):
+        engine.step(state, [Load((0.5, 0.5), 0.0, 0.05)] * (MAX_LOADS + 1))
+    with pytest.raises(InvalidLoad, match="list"):
+        engine.step(state, {"at": [0.5, 0.5], "force": 1.0, "radius": 0.05})  # type: ignore[arg-type]
+    string = ModalEngine(STRING, 100, 0.01)
+    with pytest.raises(InvalidLoad, match="use 0 for a point force"):
+        string.step(string.start().state, [Load((0.5,), 1.0, 1e-6)])
+    assert string.min_radius == pytest.approx(4.0 / 2**18, rel=1e-6)
+
+
+def test_loads_accept_scalar_at_on_the_string_and_numpy_numbers() -> None:
+    engine = ModalEngine(STRING, 100, 0.01)
+    state = engine.start().state
+    a = engine.step(state, [{"at": 0.4, "force": np.float64(0.2), "radius": 0.0}]).frame
+    b = engine.step(state, [Load((0.4,), 0.2, 0.0)]).frame
+    assert a is not None and b is not None
+    np.testing.assert_array_equal(a, b)
