@@ -7,6 +7,9 @@ loop at RATE Hz for DURATION s against the server and the echo in alternating se
 way; stops the server. Prints each round and the median and range of each figure.
 
     python benchmarks/query_cost.py [--scene membrane] [--rounds 5] [--serve-arg=--spin-us=1000]
+    python benchmarks/query_cost.py --scene membrane-live --payload step      # live, forces only
+    python benchmarks/query_cost.py --scene benchmarks/scenes/membrane-live-100.toml \
+        --payload step-frames --rate 100                                       # 100 x 100, frames
 
 Run it with PYTHONPATH pointing at another checkout's client/, server/ and models/ to measure
 that code the same way (the server subprocess inherits it).
@@ -23,7 +26,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from membrane_bench.bench import BenchReport, probe, run_bench
-from membrane_bench.loadtest import LoadSpec
+from membrane_bench.loadtest import PAYLOADS, LoadSpec
 from membrane_client import Client
 
 MEMBRANE = [sys.executable, "-m", "membrane_cli"]
@@ -56,10 +59,12 @@ def _round(args: argparse.Namespace) -> dict[str, float]:
 
 
 def _measure(address: str, args: argparse.Namespace) -> dict[str, float]:
-    target = probe(address)
+    target = probe(address, args.payload)
     open_loop = run_bench(
         target,
-        LoadSpec(mode="open", rate=args.rate, duration=args.duration, warmup=1.0),
+        LoadSpec(
+            mode="open", rate=args.rate, duration=args.duration, warmup=1.0, payload=args.payload
+        ),
         baseline=True,
         segments=args.segments,
     )
@@ -67,7 +72,12 @@ def _measure(address: str, args: argparse.Namespace) -> dict[str, float]:
     handling = _handling(address)
     closed = run_bench(
         target,
-        LoadSpec(mode="closed", concurrency=args.concurrency, duration=args.duration / 2),
+        LoadSpec(
+            mode="closed",
+            concurrency=args.concurrency,
+            duration=args.duration / 2,
+            payload=args.payload,
+        ),
         baseline=True,
         segments=args.segments,
     )
@@ -97,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the rounds and print the table."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scene", default="membrane")
+    parser.add_argument("--payload", default="query", choices=PAYLOADS)
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--rate", type=float, default=1000.0)
     parser.add_argument("--duration", type=float, default=10.0)
@@ -111,7 +122,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"round {index + 1}: " + ", ".join(f"{k} {v:.1f}" for k, v in figures.items()),
               flush=True)  # fmt: skip
     print(
-        f"\nmedian [min, max] of {args.rounds} rounds ({args.scene}, {' '.join(args.serve_args)}):"
+        f"\nmedian [min, max] of {args.rounds} rounds ({args.scene}, {args.payload}, "
+        f"{' '.join(args.serve_args)}):"
     )
     for key in rounds[0]:
         values = [figures[key] for figures in rounds]

@@ -21,10 +21,20 @@ from pathlib import Path
 from typing import Any
 
 from membrane_bench.echo import EchoServer
-from membrane_bench.loadtest import PERCENTILES, LoadResult, LoadSpec, ProgressHook, run_load
+from membrane_bench.loadtest import (
+    PERCENTILES,
+    STEP_DEPTH,
+    STEP_RADIUS,
+    LoadResult,
+    LoadSpec,
+    ProgressHook,
+    run_load,
+)
 from membrane_client.client import Client
 from membrane_client.errors import MembraneError, Timeout, UserError
+from membrane_client.frame import SceneInfo
 from membrane_client.protocol import Op, encode
+from membrane_client.session import Session
 
 __all__ = ["BenchError", "BenchReport", "Target", "probe", "run_bench"]
 
@@ -53,7 +63,8 @@ class Target:
         scene: The scene the queries go to (as the server names it), or None for ``ping``.
         times: The query times to cycle through (the scene's step times, or the one asked for).
         reply_bytes: Length of the server's reply to one benchmarked request.
-        evaluator: The scene's evaluator kind (``describe``), or None.
+        evaluator: The scene's evaluator kind (``describe``; "live" for live steps), or None.
+        probe_at: Where a live step's probe presses (the middle of the scene's domain).
     """
 
     address: str
@@ -61,6 +72,7 @@ class Target:
     times: tuple[float, ...]
     reply_bytes: int
     evaluator: str | None
+    probe_at: tuple[float, ...] = (0.5, 0.5)
 
 
 def probe(
@@ -82,6 +94,9 @@ def probe(
                 return Target(address, None, (0.0,), _reply_bytes(client.request(Op.PING)), None)
             op = Op.DESCRIBE
             info = client.describe()
+            if payload in ("step", "step-frames"):
+                op = Op.STEP
+                return _probe_live(client, info, payload == "step-frames")
             times = (fixed_t,) if fixed_t is not None else tuple(float(t) for t in info.times())
             op = Op.QUERY
             reply = client.request(Op.QUERY, scene=scene, t=times[0])
@@ -94,6 +109,19 @@ def probe(
     except MembraneError as exc:
         raise BenchError(f"{op} request to {address} failed: {exc}") from None
     return Target(address, info.name, times, _reply_bytes(reply), info.evaluator)
+
+
+def _probe_live(client: Client, info: SceneInfo, frames: bool) -> Target:
+    """A live scene's target: one step with the load's probe, in a session of its own."""
+    if not info.live:
+        raise BenchError(f"scene {info.name} is not live: --payload step needs a live scene")
+    centre = tuple(0.5 for _ in range(info.points.shape[1]))  # the middle of the unit domain
+    probe = {"at": list(centre), "depth": STEP_DEPTH, "radius": STEP_RADIUS}
+    with Session(client, info.name).open() as session:
+        reply = client.request(
+            Op.STEP, scene=info.name, session=session.id, k=0, probes=[probe], frame=frames
+        )
+    return Target(client.address, info.name, (0.0,), _reply_bytes(reply), "live", centre)
 
 
 def _reply_bytes(reply: dict[str, Any]) -> int:
@@ -276,6 +304,8 @@ def run_bench(
         raise BenchError(f"segments must be >= 1, got {segments}")
     if spec.payload == "query":
         spec = replace(spec, times=target.times, scene=target.scene)
+    elif spec.payload in ("step", "step-frames"):
+        spec = replace(spec, scene=target.scene, probe_at=target.probe_at)
     session = secrets.token_hex(16)  # bench clients identify themselves as a real client does
     spec = replace(spec, session=session)
     part = replace(spec, duration=spec.duration / segments)

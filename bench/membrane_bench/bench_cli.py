@@ -83,7 +83,11 @@ def add_bench(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
         help="seconds of load before measuring (default 1)",
     )
     parser.add_argument(
-        "--payload", choices=("query", "ping"), default="query", help="what to send (default query)"
+        "--payload",
+        choices=("query", "ping", "step", "step-frames"),
+        default="query",
+        help="what to send (default query); on a live scene, step (a probe pressing, forces "
+        "only) or step-frames (with the frame), a session per client process",
     )
     parser.add_argument(
         "--t",

@@ -16,6 +16,10 @@ the correction adds.
 Closed loop (``concurrency``): each client keeps its share of the requests in flight; a reply
 triggers the next request, and latency is send-to-receive.
 
+Live steps (``step``, ``step-frames``): each client process opens a live session of its own
+before the run and closes it after; its requests step it with one probe pressing at
+``probe_at`` (the server's haptic path), without frames or with them.
+
 Every loop is bounded: a request without a reply after ``timeout`` counts as a ``timeout`` error,
 and each process stops ``timeout`` after the end of the run at the latest.
 """
@@ -36,10 +40,11 @@ from typing import Any, Literal, Protocol
 import zmq
 from hdrh.histogram import HdrHistogram
 
-from membrane_client.protocol import Request, peek_reply
+from membrane_client.protocol import Op, Request, peek_reply
 from membrane_errors import UserError
 
 __all__ = [
+    "PAYLOADS",
     "PERCENTILES",
     "LoadError",
     "LoadResult",
@@ -52,7 +57,11 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 Mode = Literal["open", "closed"]
-Payload = Literal["query", "ping"]
+Payload = Literal["query", "ping", "step", "step-frames"]
+PAYLOADS: tuple[Payload, ...] = ("query", "ping", "step", "step-frames")
+# The probe of a live step: a light press (problem units) with a membrane-sized footprint.
+STEP_DEPTH, STEP_RADIUS = 1e-4, 0.05
+_OPEN_ID = 2**62  # the session's open and close: ids no step of a run reaches
 
 # Reported percentiles: label -> percentile.
 PERCENTILES: dict[str, float] = {"p50": 50.0, "p90": 90.0, "p99": 99.0, "p99.9": 99.9}
@@ -90,14 +99,17 @@ class LoadSpec:
         clients: Number of client processes.
         duration: Measured seconds.
         warmup: Seconds of load before measuring (not recorded).
-        payload: ``"query"`` (cycling through ``times``) or ``"ping"``.
+        payload: ``"query"`` (cycling through ``times``), ``"ping"``, or a live ``"step"``
+            (forces only) or ``"step-frames"`` (with the frame).
         times: The query times, in the order they are cycled through.
         scene: Scene name to put in every request (servers hosting several scenes), or None.
         timeout: Seconds without a reply after which a request counts as a timeout.
         deadline: Open loop: latency above this many seconds is a missed deadline; None means one
             client period (the time until that client's next request is due).
         session: Session id prefix; client i sends ``f"{session}-{i}"`` with every request, as a
-            real client sends its own session id. None sends none.
+            real client sends its own session id. None sends none (a live step needs one: it
+            then uses ``"bench"``).
+        probe_at: Where a live step's probe presses (lattice coordinates of the scene).
     """
 
     mode: Mode
@@ -112,10 +124,11 @@ class LoadSpec:
     timeout: float = 1.0
     deadline: float | None = None
     session: str | None = None
+    probe_at: tuple[float, ...] = (0.5, 0.5)
 
     def __post_init__(self) -> None:
         _require(self.mode in ("open", "closed"), f"mode must be open or closed, not {self.mode}")
-        _require(self.payload in ("query", "ping"), f"unknown payload {self.payload!r}")
+        _require(self.payload in PAYLOADS, f"unknown payload {self.payload!r}")
         _require(self.clients >= 1, f"clients must be >= 1, got {self.clients}")
         _require(_positive(self.duration), f"duration must be > 0 s, got {self.duration}")
         _require(self.warmup >= 0 and math.isfinite(self.warmup), "warmup must be >= 0 s")
@@ -340,11 +353,21 @@ class _Channel:
         self._socket.connect(address)
         self._spec = spec
         self._client = client
-        self._session = None if spec.session is None else f"{spec.session}-{client}"
+        self.live = spec.payload in ("step", "step-frames")
+        prefix = spec.session or ("bench" if self.live else None)
+        self._session = None if prefix is None else f"{prefix}-{client}"
+        self._steps = 0  # live: steps queued so far, the next step's k
+        probe = {"at": list(spec.probe_at), "depth": STEP_DEPTH, "radius": STEP_RADIUS}
+        self._probes = [probe]
 
     def request_bytes(self, number: int) -> bytes:
         """Encode request ``number`` of this client (ids are per socket, so ``number`` is fine)."""
         spec = self._spec
+        if self.live:
+            frame = spec.payload == "step-frames"
+            step = Request(Op.STEP, number, self._session, spec.scene, k=self._steps, frame=frame)
+            step.probes = self._probes
+            return step.to_wire()
         request = Request(spec.payload, number, self._session, spec.scene)
         if spec.payload == "query":
             # Clients interleave along the time grid, so together they sweep it in order.
@@ -357,7 +380,20 @@ class _Channel:
             self._socket.send_multipart([b"", self.request_bytes(number)], flags=zmq.NOBLOCK)
         except zmq.Again:
             return False
+        self._steps += self.live
         return True
+
+    def session_op(self, op: Op, timeout_s: float) -> None:
+        """Open or close this client's live session, waiting for the reply (outside the run)."""
+        request = Request(op, _OPEN_ID, self._session, self._spec.scene)
+        self._socket.send_multipart([b"", request.to_wire()])
+        until = time.perf_counter_ns() + int(timeout_s * 1e9)
+        while (got := self.receive(until)) is not None:
+            if got[0] == _OPEN_ID:
+                if got[2] is not None:
+                    raise LoadError(f"{op} of the live session {self._session} failed: {got[2]}")
+                return
+        raise LoadError(f"no reply to the {op} of the live session {self._session}")
 
     def receive(self, until_ns: int) -> tuple[int, int, str | None] | None:
         """The next reply before ``until_ns``: (request id, receive time, error code or None)."""
@@ -509,12 +545,16 @@ def _client_main(
     """Entry point of one client process: connect, wait for the common start, run, report."""
     channel = _Channel(address, spec, client)
     try:
+        if channel.live:
+            channel.session_op(Op.OPEN, _STARTUP_TIMEOUT_S)
         ready.put(client)
         if not go.wait(_STARTUP_TIMEOUT_S):
             results.put((client, None, "never told to start"))
             return
         loop = _open_loop if spec.mode == "open" else _closed_loop
         tally = loop(channel, spec, client, start_ns.value, progress)
+        if channel.live:
+            channel.session_op(Op.CLOSE, spec.timeout * 5)
         results.put((client, tally.to_wire(), None))
     except Exception as exc:  # reported to the parent, which fails the run with it
         results.put((client, None, f"{type(exc).__name__}: {exc}"))

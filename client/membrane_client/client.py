@@ -15,6 +15,7 @@ import zmq
 from membrane_client.errors import MembraneError, UserError
 from membrane_client.frame import Frame, SceneInfo
 from membrane_client.protocol import Op, Request, read_reply
+from membrane_client.session import Session
 from membrane_client.transport import LazyPirate, Transport
 
 __all__ = ["DEFAULT_ADDRESS", "Client"]
@@ -34,7 +35,8 @@ class Client:
         timeout: Seconds to wait for each reply; None waits forever (no Timeout, no retries).
         retries: How many times a request is re-sent on a fresh socket after a timeout.
         scene: The scene requests name by default (needed when the server hosts several).
-        session: Session id sent with every request (default: a random 32-hex-digit id).
+        session: Session id sent with every request (default: a random 32-hex-digit id; the
+            attribute session_id). A live Session (``session()``) sends its own.
         context: ZeroMQ context to use (default: the process-wide shared one).
         socket_options: Extra ``zmq`` socket options set on every socket this client opens
             (e.g. CurveZMQ keys), option -> value.
@@ -65,7 +67,7 @@ class Client:
         self.timeout = timeout
         self.retries = retries if timeout is not None else 0
         self.scene = scene
-        self.session = session or uuid.uuid4().hex
+        self.session_id = session or uuid.uuid4().hex
         self._ids = itertools.count(1)
         self._described: dict[str | None, SceneInfo] = {}
         self._closed = False
@@ -107,6 +109,14 @@ class Client:
                 reply = self.request(Op.QUERY, **fields)
         return Frame.from_reply(reply, info)
 
+    def session(
+        self, scene: str | None = None, initial: Mapping[str, Any] | None = None
+    ) -> Session:
+        """Open a live session on ``scene`` (a context manager; see ``session.Session``), from
+        rest or from ``initial`` shapes on the lattice (``{"displacement": ..., "velocity": ...}``).
+        """
+        return Session(self, scene or self.scene).open(**(initial or {}))
+
     def stats(self) -> dict[str, Any]:
         """The server's counters and latency percentiles."""
         return self.request(Op.STATS)
@@ -132,7 +142,8 @@ class Client:
             raise MembraneError("the client is closed")
         request_id = next(self._ids)
         given = {key: value for key, value in fields.items() if value is not None}
-        payload = Request(op, request_id, self.session, **given).to_wire()
+        session = given.pop("session", self.session_id)  # a live Session sends its own id
+        payload = Request(op, request_id, session, **given).to_wire()
         return read_reply(self._transport.round_trip(payload), request_id)
 
     # -- lifecycle ---------------------------------------------------------------------------

@@ -43,6 +43,7 @@ class SceneInfo:
     evaluator_info: dict[str, Any] = field(default_factory=dict)  # its figures (memory, ...)
     model: dict[str, Any] = field(default_factory=dict)  # incl. its measured error
     units: dict[str, Any] = field(default_factory=dict)  # of times, coordinates, displacements
+    live: dict[str, Any] = field(default_factory=dict)  # a live scene's engine and limits
     # Names the scene's content: a query reply with another revision means the server reloaded
     # the scene with changes (the client then describes it again).
     revision: str = ""
@@ -64,6 +65,12 @@ class SceneInfo:
     def rest_positions(self) -> np.ndarray:
         """(n, 3) world coordinates of every sphere at rest (a new array)."""
         return self._rest.copy()
+
+    def positions(self, z: np.ndarray) -> np.ndarray:
+        """(n, 3) world coordinates of displacements ``z``: rest plus ``scale * z`` on ``axis``."""
+        positions = self.rest_positions()
+        positions[:, self.axis_index] += self.scale * np.asarray(z).reshape(-1)
+        return positions
 
     @cached_property
     def _rest(self) -> np.ndarray:
@@ -93,6 +100,7 @@ class SceneInfo:
             "evaluator": {"kind": self.evaluator, **self.evaluator_info},
             "model": self.model,
             "units": self.units,
+            **({"live": self.live} if self.live else {}),
         }
         return {**fields, "revision": self.revision} if self.revision else fields
 
@@ -124,6 +132,7 @@ class SceneInfo:
                 evaluator_info=evaluator,
                 model=dict(reply.get("model", {})),
                 units=dict(reply.get("units", {})),
+                live=dict(reply.get("live", {})),
                 revision=str(reply.get("revision", "")),
             )
         except (KeyError, TypeError, ValueError) as exc:
@@ -162,9 +171,7 @@ class Frame:
         """(n, 3) world coordinates: rest position plus ``scale * z`` along the scene's axis."""
         if self.info is None:
             raise UserError("this frame carries no SceneInfo; positions() needs describe()")
-        positions = self.info.rest_positions()
-        positions[:, self.info.axis_index] += self.info.scale * self.z.reshape(-1)
-        return positions
+        return self.info.positions(self.z)
 
     def to_reply_fields(self, dtype: str = "<f4", *, requested: bool = True) -> dict[str, Any]:
         """The ``query`` reply's fields, z as ``dtype``; without ``requested_t`` when not

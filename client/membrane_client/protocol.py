@@ -20,7 +20,10 @@ from membrane_client.errors import ProtocolError, ServerError, UserError
 __all__ = [
     "ARRAY_DTYPES",
     "MAX_LATTICE_POINTS",
+    "MAX_LIVE_POINTS",
+    "MAX_LOADS",
     "MAX_NESTING",
+    "MAX_PROBES",
     "MAX_REPLY_BYTES",
     "MAX_REQUEST_BYTES",
     "MAX_SESSION_CHARS",
@@ -45,10 +48,13 @@ __all__ = [
 PROTOCOL_VERSION = 1
 
 # Limits (docs/PROTOCOL.md, "Limits"). Requests are tiny maps; replies carry whole frames.
-MAX_REQUEST_BYTES = 64 * 1024
+# 128 KiB: an `open` carries a live lattice's initial shapes (2 x 10,000 float32) in one message.
+MAX_REQUEST_BYTES = 128 * 1024
 MAX_REPLY_BYTES = 64 * 1024 * 1024
 MAX_LATTICE_POINTS = 65_536
 MAX_SESSION_CHARS = 64
+MAX_LIVE_POINTS = 10_000  # a live scene's lattice (100 x 100)
+MAX_LOADS, MAX_PROBES = 64, 8  # per step
 # No message of the protocol nests deeper than 4 levels (a reply's describe fields); a bound well
 # above that keeps every walk over a decoded message, and every repr of one, shallow.
 MAX_NESTING = 32
@@ -68,6 +74,11 @@ class Op(StrEnum):
     QUERY = "query"
     STATS = "stats"
     PING = "ping"
+    OPEN = "open"  # the live ops: a session on a live scene (docs/PROTOCOL.md, "Live sessions")
+    STEP = "step"
+    READ = "read"
+    RESET = "reset"
+    CLOSE = "close"
 
 
 class ErrorCode(StrEnum):
@@ -81,6 +92,11 @@ class ErrorCode(StrEnum):
     INVALID_TIME = "invalid_time"
     OUT_OF_DOMAIN = "out_of_domain"
     INTERNAL_ERROR = "internal_error"
+    NOT_LIVE = "not_live"
+    UNKNOWN_SESSION = "unknown_session"
+    SESSION_EXISTS = "session_exists"
+    STEP_MISMATCH = "step_mismatch"
+    TOO_MANY_SESSIONS = "too_many_sessions"
 
 
 class Domain(StrEnum):
@@ -168,16 +184,23 @@ class Request:
     scene: str | None = None
     t: float | None = None
     dtype: str = "<f4"
+    k: int | None = None  # step: the index of the step to take (the session's step count)
+    loads: list[Any] | None = None  # step: maps {at, force, radius}
+    probes: list[Any] | None = None  # step: maps {at, depth, radius}
+    frame: bool = True  # step: whether the reply carries the frame
+    initial: dict[str, Any] | None = None  # open: {displacement, velocity} arrays
 
     def to_wire(self) -> bytes:
         """The request's msgpack bytes; fields left at their defaults are not sent."""
         message: dict[str, Any] = {"v": PROTOCOL_VERSION, "id": self.id, "op": self.op}
-        for key in ("session", "scene", "t"):
+        for key in ("session", "scene", "t", "k", "loads", "probes", "initial"):
             value = getattr(self, key)
             if value is not None:
                 message[key] = value
         if self.dtype != "<f4":
             message["dtype"] = self.dtype
+        if not self.frame:
+            message["frame"] = False
         return encode(message)
 
     @classmethod
@@ -227,6 +250,8 @@ class Request:
         self.scene = scene = message.get("scene")
         if scene is not None and type(scene) is not str:
             self._refuse(ErrorCode.BAD_REQUEST, f"'scene' must be a string, got {preview(scene)}")
+        if self.op in _LIVE_OPS:
+            self._read_live_fields(message)
         if self.op != Op.QUERY:
             return
         self.dtype = dtype = message.get("dtype", "<f4")
@@ -244,12 +269,36 @@ class Request:
         if not math.isfinite(self.t):
             self._refuse(ErrorCode.INVALID_TIME, f"'t' must be finite, got {self.t}")
 
+    def _read_live_fields(self, message: dict[str, Any]) -> None:
+        if self.session is None:
+            self._refuse(ErrorCode.BAD_REQUEST, f"{self.op} needs 'session' (the session's id)")
+        if self.op == Op.OPEN and (initial := message.get("initial")) is not None:
+            if type(initial) is not dict or not initial.keys() <= {"displacement", "velocity"}:
+                self._refuse(ErrorCode.BAD_REQUEST, "'initial' must map displacement/velocity")
+            self.initial = initial
+        if self.op != Op.STEP:
+            return
+        self.k = k = message.get("k")
+        if type(k) is not int or k < 0:
+            self._refuse(ErrorCode.BAD_REQUEST, f"step needs 'k' (an int >= 0), got {preview(k)}")
+        for key, most in (("loads", MAX_LOADS), ("probes", MAX_PROBES)):
+            items = message.get(key, [])
+            if type(items) is not list or len(items) > most:
+                self._refuse(ErrorCode.BAD_REQUEST, f"'{key}' must be a list of at most {most}")
+            setattr(self, key, items)
+        self.frame = frame = message.get("frame", True)
+        if type(frame) is not bool:
+            self._refuse(
+                ErrorCode.BAD_REQUEST, f"'frame' must be true or false, got {preview(frame)}"
+            )
+
     def _refuse(self, code: ErrorCode, message: str) -> NoReturn:
         raise RequestError(code, message, Request(self.op, self.id, self.session))
 
 
 _OPS = frozenset(Op)
-_SCENE_OPS = frozenset((Op.DESCRIBE, Op.QUERY))
+_LIVE_OPS = frozenset((Op.OPEN, Op.STEP, Op.READ, Op.RESET, Op.CLOSE))
+_SCENE_OPS = frozenset((Op.DESCRIBE, Op.QUERY, *_LIVE_OPS))
 _SESSION = MAX_SESSION_CHARS
 
 

@@ -12,6 +12,7 @@ import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+from membrane_cli.arguments import bounded_float, bounded_int
 from membrane_client.client import DEFAULT_ADDRESS as DEFAULT_BIND
 
 if TYPE_CHECKING:  # annotations only: importing these at run time is the handler's job
@@ -65,6 +66,20 @@ def add_serve(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
         metavar="US",
         help="after each reply, poll without sleeping for this long (up to 100000): faster "
         "replies at haptic rates, for a core while clients are active (default 0)",
+    )
+    parser.add_argument(
+        "--max-sessions",
+        type=bounded_int(1, 100_000),
+        default=64,
+        metavar="N",
+        help="live sessions open at once; more get too_many_sessions (default 64)",
+    )
+    parser.add_argument(
+        "--session-idle-s",
+        type=bounded_float(0, exclusive=True),
+        default=300.0,
+        metavar="S",
+        help="a live session unused this long is closed (default 300)",
     )
     parser.add_argument(
         "--daemon",
@@ -166,6 +181,7 @@ def _serve(
 ) -> int:
     import zmq
 
+    from membrane_server.live import SessionTable
     from membrane_server.server import (
         DEFAULT_PEER_BUDGET,
         SHUTDOWN_LINGER_MS,
@@ -191,6 +207,7 @@ def _serve(
             socket_options=options,
             peer_budget=args.peer_budget or DEFAULT_PEER_BUDGET,
             spin=args.spin_us / 1e6,
+            sessions=SessionTable(args.max_sessions, args.session_idle_s),
         )
         _warn_invisible_motion(server)
         server.install_signal_handlers()

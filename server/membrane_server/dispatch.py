@@ -12,7 +12,6 @@ import hashlib
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -33,7 +32,9 @@ from membrane_client.protocol import (
     ok_reply,
     preview,
 )
+from membrane_models.live import LiveError, ModalEngine
 from membrane_server.evaluators import Evaluator, build_evaluator
+from membrane_server.live import LiveOps, SessionTable, build_engine, live_description
 from membrane_server.reply_cache import ReplyCache
 from membrane_server.reply_encoding import EncodedFields, encode_fields, encode_ok_reply
 from membrane_server.scene import Scene, SceneError, load_scene
@@ -69,10 +70,17 @@ def server_version() -> str:
 class ServedScene:
     """A scene ready to answer: its evaluator built once, its time grid, its describe payload."""
 
-    def __init__(self, scene: Scene, evaluator: Evaluator, source: ModelSource) -> None:
+    def __init__(
+        self,
+        scene: Scene,
+        evaluator: Evaluator,
+        source: ModelSource,
+        live: ModalEngine | None = None,
+    ) -> None:
         self.scene = scene
         self.evaluator = evaluator
         self.source = source
+        self.live = live  # a live scene's engine: sessions step it (membrane_server.live)
         self.timeline = Timeline(
             dt=scene.dt,
             last_step=scene.last_step,
@@ -101,14 +109,15 @@ class ServedScene:
         started = time.perf_counter()
         try:
             evaluator = build_evaluator(scene, source, threads=threads)
-        except SceneError as exc:  # raised where the scene's file is not known: name it
+            engine = None if scene.live is None else build_engine(scene, source.problem)
+        except (SceneError, LiveError) as exc:  # raised where the scene's file is not known
             raise scene.error(exc) from None
         logger.info(
             "scene %s: %s evaluator, %d points, model %s, built in %.2f s",
             scene.name, evaluator.kind, evaluator.n_points, source.summary()["name"],
             time.perf_counter() - started,
         )  # fmt: skip
-        return cls(scene, evaluator, source)
+        return cls(scene, evaluator, source, engine)
 
     @property
     def name(self) -> str:
@@ -173,6 +182,7 @@ class ServedScene:
             evaluator_info={k: v for k, v in self.evaluator.info().items() if k != "kind"},
             model=self.source.summary(),
             units=UNITS,
+            live={} if self.live is None else live_description(self.live),
         ).to_reply_fields()
 
 
@@ -184,9 +194,9 @@ class Prepared(NamedTuple):
     scene: str | None = None
 
 
-@dataclass(frozen=True)
-class Answer:
-    """A reply, plus what the stats need to know about the request."""
+class Answer(NamedTuple):
+    """A reply, plus what the stats need to know about the request (a tuple: one per request,
+    built on the hot path)."""
 
     reply: bytes
     op: str | None = None
@@ -207,6 +217,7 @@ class Dispatcher:
         self,
         scenes: Sequence[ServedScene],
         stats_snapshot: Callable[[], dict[str, Any]] | None = None,
+        sessions: SessionTable | None = None,
     ) -> None:
         if not scenes:
             raise ValueError("a server needs at least one scene")
@@ -216,12 +227,20 @@ class Dispatcher:
             raise ValueError(f"scene names must be distinct, got {names}")
         self._stats_snapshot = stats_snapshot or dict
         self._only = scenes[0] if len(scenes) == 1 else None
-        self._ops: dict[str, Callable[[Request], dict[str, Any] | Prepared]] = {
+        # Live sessions outlive a Dispatcher: the server hands every one it makes the same table.
+        self.sessions = sessions if sessions is not None else SessionTable()
+        live = LiveOps(self.sessions, self._scene)
+        self._ops: dict[str, Callable[[Request], dict[str, Any] | Prepared | bytes]] = {
             Op.HELLO: self._hello,
             Op.DESCRIBE: self._describe,
             Op.QUERY: self._query,
             Op.STATS: self._stats,
             Op.PING: self._ping,
+            Op.OPEN: live.open,
+            Op.STEP: live.step,
+            Op.READ: live.read,
+            Op.RESET: live.reset,
+            Op.CLOSE: live.close,
         }
 
     @property
@@ -250,7 +269,7 @@ class Dispatcher:
             if isinstance(fields, Prepared):
                 reply = encode_ok_reply(request.id, fields.fields, **fields.extra)
                 return Answer(reply, request.op, None, fields.scene, request.session)
-            reply = encode(ok_reply(request.id, **fields))
+            reply = fields if isinstance(fields, bytes) else encode(ok_reply(request.id, **fields))
         except RequestError as exc:
             return self._error(request.id, exc.code, str(exc), request.op, request.session)
         except Exception as exc:  # a bug must cost one reply, never the server
@@ -320,7 +339,7 @@ class Dispatcher:
         return Prepared(fields, {"requested_t": t}, served.name)
 
     def _stats(self, request: Request) -> dict[str, Any]:
-        return self._stats_snapshot()
+        return {**self._stats_snapshot(), "live": self.sessions.snapshot()}
 
     def _ping(self, request: Request) -> dict[str, Any]:
         return {"pong": True, "time": time.time()}

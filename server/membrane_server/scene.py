@@ -28,7 +28,7 @@ from pydantic import (
     model_validator,
 )
 
-from membrane_client.protocol import MAX_LATTICE_POINTS
+from membrane_client.protocol import MAX_LATTICE_POINTS, MAX_LIVE_POINTS
 from membrane_errors import UserError
 from membrane_models.problems import PROBLEMS, make_problem
 
@@ -38,6 +38,7 @@ __all__ = [
     "SCENES_DIR",
     "EvaluatorKind",
     "Lattice",
+    "LiveSettings",
     "Placement",
     "Scene",
     "SceneError",
@@ -174,6 +175,14 @@ class Placement(_Strict):
     axis: Literal["x", "y", "z"] = "z"
 
 
+class LiveSettings(_Strict):
+    """A live scene's engine: sessions step it with loads and probes (docs/LIVE.md)."""
+
+    damping: float = Field(default=0.0, ge=0.0, lt=1.0)  # modal damping ratio zeta
+    hold: Literal["zoh", "foh"] = "zoh"  # loads held over a step, or ramped from the last
+    modes: int | None = Field(default=None, ge=1, le=1024)  # per axis (default: the lattice's)
+
+
 class Scene(_Strict):
     """One served scene (field reference: docs/SCENES.md)."""
 
@@ -192,6 +201,7 @@ class Scene(_Strict):
     snapping: Literal["nearest", "linear"] = "nearest"
     policy: Literal["error", "clamp", "hold"] = "hold"
     table_max_bytes: int = Field(default=DEFAULT_TABLE_MAX_BYTES, gt=0)
+    live: LiveSettings | None = None
     # Where the file was read from: relative model paths are resolved against its folder.
     source: Path | None = Field(default=None, exclude=True)
 
@@ -231,6 +241,20 @@ class Scene(_Strict):
             )
         make_problem(model, problem_overrides(parameters))  # InvalidProblem names the parameter
         return parameters
+
+    @model_validator(mode="after")
+    def _live_lattice(self) -> Scene:
+        if self.live is None:
+            return self
+        lattice = self.lattice
+        if lattice.points is not None or min(lattice.shape) < 3:
+            raise ValueError("live: needs a grid lattice (nx, and ny on a membrane), >= 3 per axis")
+        if math.prod(lattice.shape) > MAX_LIVE_POINTS:
+            raise ValueError(
+                f"live: {math.prod(lattice.shape)} points, more than the live limit "
+                f"{MAX_LIVE_POINTS} (100 x 100)"
+            )
+        return self
 
     @model_validator(mode="after")
     def _distinct_step_times(self) -> Scene:

@@ -33,6 +33,7 @@ from membrane_client.client import DEFAULT_ADDRESS
 from membrane_client.protocol import MAX_REQUEST_BYTES, ErrorCode, encode, error_reply
 from membrane_errors import UserError
 from membrane_server.dispatch import Answer, Dispatcher, ServedScene
+from membrane_server.live import SessionTable
 from membrane_server.reloading import SceneBuilder, describe_changes
 from membrane_server.scene import Scene, load_scene
 from membrane_server.stats import Stats
@@ -67,9 +68,10 @@ _START_TIMEOUT_S = 10.0
 DEFAULT_PEER_BUDGET = 1024 * 1024
 # Never fewer queued replies than this per peer, whatever the budget: a client may pipeline.
 _MIN_QUEUED_REPLIES = 2
-# Requests (up to 64 KiB each) queued per peer before ZeroMQ stops reading its connection:
-# back-pressure on that peer, nothing lost. Sized like the reply queue, from the peer budget.
-_MIN_QUEUED_REQUESTS = 16
+# Requests (up to MAX_REQUEST_BYTES, 128 KiB, each) queued per peer before ZeroMQ stops reading
+# its connection: back-pressure on that peer, nothing lost. Sized like the reply queue, from the
+# peer budget (1 MiB by default: 8 requests of the largest size).
+_MIN_QUEUED_REQUESTS = 8
 # Spinning longer than this after a reply would only burn a core: no client polls that slowly
 # and still cares about a few tens of microseconds.
 _MAX_SPIN_S = 0.1
@@ -93,6 +95,8 @@ class Server:
         peer_budget: Bytes of unread replies kept for one peer (see ``send_queue_limit``).
         spin: Seconds to keep polling without blocking after each reply (0: block at once);
             for haptic rates, a little more than the clients' period.
+        sessions: The live sessions' table (default: 64 sessions, 300 s idle); it outlives
+            reloads, so open sessions keep the engine they opened with.
 
     Raises:
         SceneError, ManifestError: A scene cannot be served (message names the cause).
@@ -108,6 +112,7 @@ class Server:
         socket_options: Mapping[int, int | bytes] | None = None,
         peer_budget: int = DEFAULT_PEER_BUDGET,
         spin: float = 0.0,
+        sessions: SessionTable | None = None,
     ) -> None:
         if peer_budget < 1:
             raise ValueError(f"peer_budget must be a positive number of bytes, got {peer_budget}")
@@ -115,7 +120,9 @@ class Server:
         self._sources = list(scenes)  # kept so that a reload re-reads names and files
         self._threads = threads
         self.stats = Stats()
-        self.dispatcher = Dispatcher(_load_scenes(self._sources, threads), self.stats.snapshot)
+        self.sessions = sessions or SessionTable()
+        served = _load_scenes(self._sources, threads)
+        self.dispatcher = Dispatcher(served, self.stats.snapshot, self.sessions)
         self.bind = bind
         self._context = context or zmq.Context.instance()
         self._socket_options = dict(socket_options or {})
@@ -217,7 +224,7 @@ class Server:
 
     def _swap_in(self, served: list[ServedScene]) -> None:
         changes = describe_changes(self.dispatcher.scenes, served)
-        self.dispatcher = Dispatcher(served, self.stats.snapshot)
+        self.dispatcher = Dispatcher(served, self.stats.snapshot, self.sessions)
         logger.info("reloaded scenes: %s", changes)
 
     @property

@@ -33,7 +33,7 @@ from membrane_coppelia.coppelia import (
 from membrane_coppelia.coppelia_lua import BATCH_FUNCTION, BATCH_SCRIPT_FILE
 from membrane_coppelia.coppelia_standin import CoppeliaStandin, FakeScene
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 LUA_SCRIPT = REPO / "coppelia" / "membrane_coppelia" / BATCH_SCRIPT_FILE
 SIM_TIMEOUT = 2.0
 

@@ -1,4 +1,8 @@
-"""Shared fixtures: tiny ONNX models, scenes built on them, and live servers on loopback.
+"""Fixtures that need the server: tiny ONNX models, scenes built on them, servers on loopback.
+
+The conftest.py of each folder whose tests use them (tests/server, tests/system, tests/coppelia)
+imports them by name; tests/client has none, so that it runs on a client-only install. Each of
+those folders gets its own instances of the session-wide fixtures.
 
 Servers bind ``tcp://127.0.0.1:*`` (a free port), run in a background thread of the test process,
 and are stopped (sockets closed, LINGER 0) at teardown.

@@ -18,12 +18,19 @@ from membrane_models.training import build_model, recipe, train
 from membrane_models.zoo_index import resolve_model
 
 TINY: dict[str, Any] = {
-    "name": "spinn", "rank": 4, "width": 8, "depth": 2,
+    "name": "spinn",
+    "rank": 4,
+    "width": 8,
+    "depth": 2,
     "space_features": {"kind": "harmonic", "features": 3, "include_input": True},
     "time_features": {"kind": "gaussian", "sigma": 3.0, "features": 3},
 }
 TINY_STMSFFN: dict[str, Any] = {
-    "name": "stmsffn", "width": 8, "hidden": 2, "sigmas_x": [1.0], "sigmas_t": [1.0, 10.0],
+    "name": "stmsffn",
+    "width": 8,
+    "hidden": 2,
+    "sigmas_x": [1.0],
+    "sigmas_t": [1.0, 10.0],
     "shared": False,
 }
 
@@ -35,8 +42,12 @@ def _relative(a: np.ndarray, b: np.ndarray) -> float:
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("problem", "arch"),
-    [("string-forced", TINY), ("membrane-forced", TINY), ("string-plucked", TINY),
-     ("membrane-forced", TINY_STMSFFN)],
+    [
+        ("string-forced", TINY),
+        ("membrane-forced", TINY),
+        ("string-plucked", TINY),
+        ("membrane-forced", TINY_STMSFFN),
+    ],
 )
 def test_untrained_network_parity(tmp_path: Path, problem: str, arch: dict[str, Any]) -> None:
     model = build_model(recipe(problem, arch=arch))
@@ -67,11 +78,17 @@ def test_untrained_network_parity(tmp_path: Path, problem: str, arch: dict[str, 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory: pytest.TempPathFactory) -> Manifest:
     root = tmp_path_factory.mktemp("export")
-    config = recipe("string-forced", arch=TINY, iterations=30, lbfgs_fraction=0.2,
-                    space_points=16, time_points=16, lbfgs_space_points=16,
-                    lbfgs_time_points=16)
-    train(config, out_dir=root / "run", command="membrane train string-forced ...",
-          progress=False)
+    config = recipe(
+        "string-forced",
+        arch=TINY,
+        iterations=30,
+        lbfgs_fraction=0.2,
+        space_points=16,
+        time_points=16,
+        lbfgs_space_points=16,
+        lbfgs_time_points=16,
+    )
+    train(config, out_dir=root / "run", command="membrane train string-forced ...", progress=False)
     return export_checkpoint(root / "run" / "checkpoint.pt", root / "model" / "tiny.onnx")
 
 
@@ -118,8 +135,10 @@ def test_cli_evaluate_prints_the_manifest_figure(
 ) -> None:
     assert exported.path is not None
     plot = tmp_path / "plot.png"
-    assert main(["evaluate", str(exported.path.with_suffix(".onnx")), "--json",
-                 "--plot", str(plot)]) == 0
+    assert (
+        main(["evaluate", str(exported.path.with_suffix(".onnx")), "--json", "--plot", str(plot)])
+        == 0
+    )
     out = json.loads(capsys.readouterr().out)
     assert f"{out['relative_l2']:.3e}" == f"{exported.error['relative_l2']:.3e}"
     assert plot.stat().st_size > 1000

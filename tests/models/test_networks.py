@@ -21,9 +21,15 @@ D = torch.float64
 def _small_core(name: str, dims: int) -> SeparableCore:
     if name.startswith("spinn"):
         features = {"kind": "harmonic", "features": 3, "include_input": True}
-        core = SeparablePINN(dims, rank=5, width=8, depth=2, space_features=features,
-                             time_features={"kind": "gaussian", "sigma": 2.0, "features": 3},
-                             skip=name == "spinn-skip")
+        core = SeparablePINN(
+            dims,
+            rank=5,
+            width=8,
+            depth=2,
+            space_features=features,
+            time_features={"kind": "gaussian", "sigma": 2.0, "features": 3},
+            skip=name == "spinn-skip",
+        )
         for module in core.modules():  # the skip paths start at zero: give them weights
             if isinstance(module, AxisNetwork) and module.skip is not None:
                 torch.nn.init.normal_(module.skip.weight)
@@ -80,8 +86,12 @@ def test_time_jet_matches_autograd(arch: str, problem_name: str) -> None:
     values = model.time(t)
     jet = model.time_jet(t)
     first = torch.stack(
-        [torch.autograd.grad(values[:, k].sum(), t, create_graph=True)[0][:, 0]
-         for k in range(values.shape[1])], 1)
+        [
+            torch.autograd.grad(values[:, k].sum(), t, create_graph=True)[0][:, 0]
+            for k in range(values.shape[1])
+        ],
+        1,
+    )
     second = torch.stack([_second(first[:, k], t) for k in range(values.shape[1])], 1)
     torch.testing.assert_close(jet.value, values.detach())
     torch.testing.assert_close(jet.d1[0], first.detach(), rtol=1e-9, atol=1e-12)

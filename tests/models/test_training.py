@@ -23,7 +23,10 @@ from membrane_models.training import (
 from membrane_models.transforms import initial_shape_jet
 
 TINY_SPINN: dict[str, Any] = {
-    "name": "spinn", "rank": 6, "width": 16, "depth": 2,
+    "name": "spinn",
+    "rank": 6,
+    "width": 16,
+    "depth": 2,
     "space_features": {"kind": "harmonic", "features": 4, "include_input": True},
     "time_features": {"kind": "harmonic", "features": 4, "include_input": True},
 }
@@ -31,9 +34,15 @@ TINY_SPINN: dict[str, Any] = {
 
 def _tiny(problem: str, **changes: Any) -> TrainConfig:
     base: dict[str, Any] = {
-        "arch": TINY_SPINN, "iterations": 60, "lbfgs_fraction": 0.25, "lr": 3e-3,
-        "space_points": 16, "time_points": 16, "lbfgs_space_points": 20,
-        "lbfgs_time_points": 20, "checkpoint_every": 20,
+        "arch": TINY_SPINN,
+        "iterations": 60,
+        "lbfgs_fraction": 0.25,
+        "lr": 3e-3,
+        "space_points": 16,
+        "time_points": 16,
+        "lbfgs_space_points": 20,
+        "lbfgs_time_points": 20,
+        "checkpoint_every": 20,
     }
     base.update(changes)
     return recipe(problem, **base)
@@ -57,10 +66,19 @@ def test_short_run_loss_falls(problem: str) -> None:
 @pytest.mark.slow
 def test_published_configuration_trains_with_initial_terms() -> None:
     config = recipe(
-        "string-forced", "stmsffn", iterations=30,
-        arch={"name": "stmsffn", "width": 16, "hidden": 2, "sigmas_x": [1.0],
-              "sigmas_t": [1.0, 50.0], "shared": True},
-        space_points=64, initial_points=32,
+        "string-forced",
+        "stmsffn",
+        iterations=30,
+        arch={
+            "name": "stmsffn",
+            "width": 16,
+            "hidden": 2,
+            "sigmas_x": [1.0],
+            "sigmas_t": [1.0, 50.0],
+            "shared": True,
+        },
+        space_points=64,
+        initial_points=32,
     )
     result = train(config, progress=False)
     first, last = result.history[0], result.history[-1]
@@ -119,8 +137,12 @@ def test_run_ends_with_the_mean_of_its_last_weights(tmp_path: Path) -> None:
 def test_resume_refuses_another_configuration(tmp_path: Path) -> None:
     train(_tiny("string-forced", iterations=5), out_dir=tmp_path, progress=False)
     with pytest.raises(ValueError, match="another configuration"):
-        train(_tiny("string-forced", iterations=5, seed=3), out_dir=tmp_path, resume=True,
-              progress=False)
+        train(
+            _tiny("string-forced", iterations=5, seed=3),
+            out_dir=tmp_path,
+            resume=True,
+            progress=False,
+        )
 
 
 def test_not_a_checkpoint_is_a_clear_error(tmp_path: Path) -> None:

@@ -35,7 +35,7 @@ def scene_with(**changes: Any) -> Scene:
 
 
 def test_builtin_scenes_are_the_documented_ones() -> None:
-    assert builtin_scenes() == ["membrane", "rope", "rope-plucked"]
+    assert builtin_scenes() == ["membrane", "membrane-live", "rope", "rope-live", "rope-plucked"]
 
 
 def test_rope_scene() -> None:
@@ -145,7 +145,7 @@ def test_invalid_toml_is_a_scene_error(tmp_path: Path) -> None:
 
 
 def test_unknown_builtin_lists_the_known_ones() -> None:
-    with pytest.raises(SceneError, match="membrane, rope, rope-plucked"):
+    with pytest.raises(SceneError, match="membrane, membrane-live, rope, rope-live, rope-plucked"):
         load_scene("skin")
 
 

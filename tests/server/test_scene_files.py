@@ -18,7 +18,7 @@ from membrane_server.scene import Scene, SceneError, load_scene, scene_from_dict
 from membrane_server.source import resolve_source
 from membrane_server.visibility import VISIBLE_FRACTION, invisible_motion, lattice_spacing
 
-DOCS = Path(__file__).resolve().parents[1] / "docs"
+DOCS = Path(__file__).resolve().parents[2] / "docs"
 
 BASE: dict[str, Any] = {
     "name": "s",

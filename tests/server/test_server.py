@@ -271,7 +271,8 @@ def test_hello_lists_scenes_and_limits(evaluator_server: Server) -> None:
     assert set(hello["scenes"]) == set(EVALUATOR_KINDS)
     assert hello["default_scene"] is None
     assert hello["session"] == "me"
-    assert set(hello["ops"]) == {"hello", "describe", "query", "stats", "ping"}
+    film = {"hello", "describe", "query", "stats", "ping"}
+    assert set(hello["ops"]) == film | {"open", "step", "read", "reset", "close"}
     assert hello["limits"]["max_request_bytes"] == MAX_REQUEST_BYTES
 
 
@@ -393,17 +394,6 @@ def test_cli_query_bad_time_exits_2(
 def test_cli_ping(membrane_server: Server, capsys: pytest.CaptureFixture[str]) -> None:
     assert membrane_main(["ping", "--connect", membrane_server.address]) == 0
     assert "pong from" in capsys.readouterr().out
-
-
-def test_cli_ping_without_server_exits_1(capsys: pytest.CaptureFixture[str]) -> None:
-    silent: zmq.Socket[bytes] = zmq.Context.instance().socket(zmq.ROUTER)  # never answers
-    port = silent.bind_to_random_port("tcp://127.0.0.1")
-    try:
-        code = membrane_main(["ping", "--connect", f"tcp://127.0.0.1:{port}", "--timeout", "0.3"])
-    finally:
-        silent.close(linger=0)
-    assert code == 1
-    assert "no reply" in capsys.readouterr().err
 
 
 @pytest.mark.slow

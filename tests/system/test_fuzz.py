@@ -195,7 +195,25 @@ def expected_errors(body: list[bytes], scenes: dict[str, ServedScene]) -> tuple[
         broken |= _scene_errors(message, scenes)
         if op == Op.QUERY:
             broken |= _query_errors(message, scenes)
+    elif op in LIVE_OPS:
+        broken |= _live_errors(op, message, scenes)
     return broken, request_id
+
+
+LIVE_OPS = (Op.OPEN, Op.STEP, Op.READ, Op.RESET, Op.CLOSE)
+
+
+def _live_errors(op: str, message: dict[str, Any], scenes: dict[str, ServedScene]) -> set[str]:
+    """Every scene here is a film and no session is ever open: a live op is refused, but
+    ``close``, which is harmless on a session that is not open (PROTOCOL.md, "Live sessions")."""
+    name = message.get("scene")
+    if not isinstance(message.get("session"), str) or not isinstance(name, str | None):
+        return {ErrorCode.BAD_REQUEST}
+    if op == Op.OPEN:
+        return _scene_errors(message, scenes) or {ErrorCode.NOT_LIVE}
+    if op == Op.STEP:
+        return {ErrorCode.BAD_REQUEST}  # the fuzzer sends no 'k'
+    return set() if op == Op.CLOSE else {ErrorCode.UNKNOWN_SESSION}
 
 
 def _scene_errors(message: dict[str, Any], scenes: dict[str, ServedScene]) -> set[str]:
@@ -253,6 +271,8 @@ def check_reply(body: list[bytes], reply_bytes: bytes, scenes: dict[str, ServedS
         assert reply["pong"] is True
     elif message["op"] == Op.HELLO:
         assert sorted(reply["scenes"]) == sorted(scenes)
+    elif message["op"] == Op.CLOSE:
+        assert reply["closed"] is False
     return "ok"
 
 
@@ -401,7 +421,9 @@ def test_the_fuzzer_reaches_every_outcome(scenes: dict[str, ServedScene]) -> Non
 
     collect()
     TALLY["dispatcher"] += sum(seen.values())
-    wanted = {str(code) for code in ErrorCode} - {ErrorCode.INTERNAL_ERROR} | {"ok"}
+    # A live session's own refusals need one open: tests/server/test_live_sessions.py has them.
+    stateful = {ErrorCode.SESSION_EXISTS, ErrorCode.STEP_MISMATCH, ErrorCode.TOO_MANY_SESSIONS}
+    wanted = {str(code) for code in ErrorCode} - {ErrorCode.INTERNAL_ERROR, *stateful} | {"ok"}
     assert wanted <= set(seen), f"never produced: {wanted - set(seen)}"
 
 

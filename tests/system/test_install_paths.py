@@ -6,6 +6,9 @@
   no extras (pyzmq, msgpack, numpy) in a fresh venv, imports ``membrane_client`` and runs
   ``membrane query``, ``membrane ping`` and ``membrane stats`` against a real server; commands
   needing an extra say which one in one line, and that line's ``pip install`` works.
+- The client's own tests: the same wheel, no extras, plus pytest, pytest-timeout and hypothesis
+  (what tests/client needs, at this environment's versions), runs ``pytest tests/client``: the
+  client's tests need nothing of the server's dependencies.
 
 The server path installs onnxruntime and scipy (tens of seconds); the wheel path builds the wheel
 and installs it with the test environment's pip into a venv without pip of its own (8 to 16 s
@@ -16,6 +19,7 @@ tests are marked slow.
 from __future__ import annotations
 
 import json
+import os
 import re
 import shlex
 import socket
@@ -24,16 +28,20 @@ import sys
 import time
 import venv
 from collections.abc import Iterator
+from importlib import metadata
 from pathlib import Path
 
 import pytest
 
 from membrane_server.server import Server
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DOCKERFILE = ROOT / "docker" / "Dockerfile"
 COMPOSE = ROOT / "docker" / "compose.yaml"
 INSTALL_TIMEOUT_S = 600
+SERVER_SIDE_MODULES = ("onnxruntime", "torch", "pydantic", "scipy")
+# What tests/client needs beyond the core install, pinned to this environment's versions.
+CLIENT_TEST_TOOLS = ("pytest", "pytest-timeout", "hypothesis")
 
 
 def dockerfile_install_command() -> list[str]:
@@ -107,6 +115,18 @@ def client_venv(tmp_path_factory: pytest.TempPathFactory, wheel: Path) -> Path:
     venv.EnvBuilder(with_pip=False, clear=True).create(root)
     bin_dir = root / "bin"
     result = pip_into(bin_dir / "python", str(wheel))
+    assert result.returncode == 0, result.stderr[-2000:]
+    return bin_dir
+
+
+@pytest.fixture(scope="module")
+def client_tests_venv(tmp_path_factory: pytest.TempPathFactory, wheel: Path) -> Path:
+    """A fresh venv with the wheel (no extras) and only the tools tests/client needs."""
+    root = tmp_path_factory.mktemp("client-tests-venv") / "venv"
+    venv.EnvBuilder(with_pip=False, clear=True).create(root)
+    bin_dir = root / "bin"
+    tools = [f"{name}=={metadata.version(name)}" for name in CLIENT_TEST_TOOLS]
+    result = pip_into(bin_dir / "python", str(wheel), *tools)
     assert result.returncode == 0, result.stderr[-2000:]
     return bin_dir
 
@@ -189,21 +209,35 @@ def test_wheel_is_the_membrane_tissue_distribution(wheel: Path, client_venv: Pat
 def test_client_only_install_imports_no_server_deps(client_venv: Path) -> None:
     code = (
         "import sys, membrane_client\n"
-        "heavy = {'onnxruntime', 'torch', 'pydantic', 'scipy'} & set(sys.modules)\n"
+        f"heavy = {set(SERVER_SIDE_MODULES)!r} & set(sys.modules)\n"
         "assert not heavy, heavy\n"
         "print('ok')"
     )
     result = run([str(client_venv / "python"), "-c", code])
     assert result.returncode == 0, result.stderr
-    for module in ("onnxruntime", "torch", "pydantic", "scipy"):
+    for module in SERVER_SIDE_MODULES:
         probe = run([str(client_venv / "python"), "-c", f"import {module}"])
         assert probe.returncode != 0, f"{module} should not be installed by the core deps"
 
 
 @pytest.mark.slow
-def test_client_only_install_queries_and_pings(
-    client_venv: Path, membrane_server: Server
-) -> None:
+def test_client_tests_pass_on_a_client_only_install(client_tests_venv: Path) -> None:
+    python = str(client_tests_venv / "python")
+    for module in SERVER_SIDE_MODULES:  # the test tools brought none of them
+        probe = run([python, "-c", f"import {module}"])
+        assert probe.returncode != 0, f"{module} is installed next to the client's tests"
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
+    result = subprocess.run(
+        [python, "-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/client"],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=INSTALL_TIMEOUT_S,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stdout[-4000:] + result.stderr[-2000:]
+    assert re.search(r"^\d+ passed", result.stdout.splitlines()[-1]), result.stdout[-2000:]
+    assert "skipped" not in result.stdout.splitlines()[-1], result.stdout[-2000:]
+
+
+@pytest.mark.slow
+def test_client_only_install_queries_and_pings(client_venv: Path, membrane_server: Server) -> None:
     membrane, address = str(client_venv / "membrane"), membrane_server.address
     ping = run([membrane, "ping", "--connect", address, "--timeout", "2"])
     assert ping.returncode == 0, ping.stderr

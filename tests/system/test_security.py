@@ -45,7 +45,7 @@ if TYPE_CHECKING:
     from onnx_graphs import TestModel
 
 MEMBRANE = [sys.executable, "-m", "membrane_cli"]
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 @dataclass(frozen=True)
