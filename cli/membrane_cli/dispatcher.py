@@ -39,6 +39,7 @@ EXTRA_FOR_MODULE: dict[str, str] = {
     "onnxruntime": "server",
     "pydantic": "server",
     "scipy": "server",
+    "threadpoolctl": "server",
     "torch": "train",
     "onnx": "train",
     "tqdm": "bench",

@@ -152,15 +152,18 @@ def preview(value: Any) -> str:
 
 
 def _nesting_exceeds(message: dict[str, Any], limit: int) -> bool:
-    """True when containers nest more than ``limit`` levels (iterative: no recursion)."""
-    pending: list[tuple[Any, int]] = [(message, 1)]
-    while pending:
-        container, depth = pending.pop()
-        if depth > limit:
-            return True
-        values = container.values() if isinstance(container, dict) else container
-        pending.extend((v, depth + 1) for v in values if isinstance(v, dict | list))
-    return False
+    """True when containers nest more than ``limit`` levels (level by level: no recursion)."""
+    level: list[Any] = [message]
+    for _ in range(limit):
+        inner = []
+        for container in level:
+            for value in container.values() if type(container) is dict else container:
+                if type(value) is dict or type(value) is list:
+                    inner.append(value)
+        if not inner:
+            return False
+        level = inner
+    return True
 
 
 class RequestError(UserError):

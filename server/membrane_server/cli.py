@@ -68,6 +68,14 @@ def add_serve(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
         "replies at haptic rates, for a core while clients are active (default 0)",
     )
     parser.add_argument(
+        "--blas-threads",
+        type=bounded_int(1, 1024),
+        default=1,
+        metavar="N",
+        help="threads numpy's BLAS may use for a frame (default 1: the steadiest latency when "
+        "cores are shared)",
+    )
+    parser.add_argument(
         "--max-sessions",
         type=bounded_int(1, 100_000),
         default=64,
@@ -180,6 +188,7 @@ def _serve(
     scenes: list[str], args: argparse.Namespace, notify_ready: Callable[[str], None] | None
 ) -> int:
     import zmq
+    from threadpoolctl import threadpool_limits
 
     from membrane_server.live import SessionTable
     from membrane_server.server import (
@@ -189,6 +198,7 @@ def _serve(
         raise_open_file_limit,
     )
 
+    threadpool_limits(limits=args.blas_threads, user_api="blas")  # for the process's lifetime
     before, after = raise_open_file_limit()  # each client costs a descriptor
     if after != before:
         logger.info("open-file limit raised from %d to %d", before, after)
