@@ -4,23 +4,25 @@ The adapter takes a ``sim`` object from the real ``coppeliasim-zmqremoteapi-clie
 (the ``coppelia`` extra) and a membrane :class:`~membrane_client.Client`. It builds the lattice
 the server describes (one spheroid per lattice point, under one parent dummy, so that the
 lattice is placed and removed as a unit), then runs the simulation in stepping mode: at each
-step it queries the server at the simulation time, moves every sphere, and calls ``sim.step()``.
+step it asks the server for the frame (a film's ``query`` at the simulation time here; a live
+session's step in :mod:`membrane_coppelia.coppelia_probe`), moves every sphere, and calls
+``sim.step()``.
 
 Two ways to move the spheres:
 
 - ``batched``: one remote call per step. A small Lua function (``coppelia_batch.lua``) is
-  installed in the scene as a customization script (``sim.createScript`` + ``sim.initScript``)
-  and called with ``sim.callScriptFunction`` with every handle and position at once. Used when
-  the simulator accepts it.
+  installed in the scene as a customization script (``sim.createScript`` from 4.7,
+  ``sim.addScript`` on 4.6: :mod:`membrane_coppelia.coppelia_compat`) and called with
+  ``sim.callScriptFunction`` with every handle and position at once.
 - ``per-sphere``: one ``sim.setObjectPosition`` per sphere per step (the fallback).
 
 Positions are given relative to the parent dummy, which is created at the world origin: as
 placed, sphere positions equal the served world positions; move the dummy to move the lattice.
 
-The remote API client sets no receive timeout, so a dead CoppeliaSim would hang it forever;
-:func:`connect_simulator` (or :func:`apply_timeouts`) sets ``RCVTIMEO``/``SNDTIMEO`` and
-``LINGER`` 0 on its socket, and the adapter turns the resulting ``zmq.Again`` into
-:class:`SimulatorTimeout`. After a timeout the connection is not used again.
+Connections and their timeouts are :mod:`membrane_coppelia.coppelia_link`'s. After a timeout,
+or an interrupt in the middle of a request, this object makes no further call on its
+connection; given ``reconnect``, it stops the simulation (and removes the lattice) from a fresh
+one, so that an interrupted run never leaves CoppeliaSim held in stepping mode.
 """
 
 from __future__ import annotations
@@ -34,12 +36,27 @@ from types import TracebackType
 from typing import Any
 
 import numpy as np
-import zmq
 
 from membrane_client.client import DEFAULT_ADDRESS, Client
-from membrane_client.errors import MembraneError, ServerError
+from membrane_client.errors import ServerError
 from membrane_client.frame import SceneInfo
 from membrane_client.protocol import ErrorCode
+from membrane_coppelia.coppelia_compat import SimCalls, read_version
+from membrane_coppelia.coppelia_interrupt import Interrupted
+from membrane_coppelia.coppelia_link import (
+    DEFAULT_REMOTE_TIMEOUT,
+    DEFAULT_SIM_HOST,
+    DEFAULT_SIM_PORT,
+    SimulatorConnectionLost,
+    SimulatorError,
+    SimulatorLink,
+    SimulatorTimeout,
+    apply_timeouts,
+    connect_simulator,
+    one_line,
+    stop_and_wait,
+    translate_remote_errors,
+)
 from membrane_coppelia.coppelia_lua import BATCH_FUNCTION, BATCH_SCRIPT
 
 __all__ = [
@@ -62,116 +79,15 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-DEFAULT_SIM_HOST = "127.0.0.1"
-DEFAULT_SIM_PORT = 23000  # the ZeroMQ remote API add-on's default port
 BATCHED = "batched"
 PER_SPHERE = "per-sphere"
 COMPLETED = "completed"
 OUT_OF_DOMAIN = "out_of_domain"
 MAX_STEPS = "max_steps"
-STOP_WAIT_S = 10.0  # how long a stop may take before we call it a failure
-
-
-class SimulatorError(MembraneError):
-    """CoppeliaSim refused a call, or the connection to it failed."""
-
-
-class SimulatorConnectionLost(SimulatorError):
-    """The connection to CoppeliaSim is unusable (its REQ socket is stuck): make no more calls."""
-
-
-class SimulatorTimeout(SimulatorConnectionLost):
-    """CoppeliaSim did not answer within the timeout."""
-
-
-# -- the connection to CoppeliaSim ----------------------------------------------------------
-
-
-def apply_timeouts(remote: Any, timeout: float) -> None:
-    """Give a ``RemoteAPIClient``'s socket a receive/send timeout and LINGER 0.
-
-    Without them a dead CoppeliaSim blocks the client forever, and the process hangs at exit
-    on the unsent request.
-
-    Args:
-        remote: a ``coppeliasim_zmqremoteapi_client.RemoteAPIClient``.
-        timeout: seconds to wait for each reply (> 0).
-    """
-    if not timeout > 0:
-        raise ValueError(f"the simulator timeout must be > 0 seconds, got {timeout}")
-    milliseconds = max(1, round(timeout * 1000))
-    remote.socket.setsockopt(zmq.RCVTIMEO, milliseconds)
-    remote.socket.setsockopt(zmq.SNDTIMEO, milliseconds)
-    remote.socket.setsockopt(zmq.LINGER, 0)
-
-
-@dataclass
-class SimulatorLink:
-    """A connection to CoppeliaSim's ZeroMQ remote API: the client and its ``sim`` object."""
-
-    remote: Any
-    sim: Any
-    address: str
-    timeout: float
-
-    def close(self) -> None:
-        """Close the socket at once (LINGER 0)."""
-        self.remote.socket.close(linger=0)
-
-
-def connect_simulator(
-    host: str = DEFAULT_SIM_HOST, port: int = DEFAULT_SIM_PORT, timeout: float = 5.0
-) -> SimulatorLink:
-    """Connect to CoppeliaSim (or the stand-in) and fetch its ``sim`` object.
-
-    Raises:
-        SimulatorTimeout: nothing answered within ``timeout`` seconds.
-        ModuleNotFoundError: the ``coppelia`` extra is not installed.
-    """
-    from coppeliasim_zmqremoteapi_client import RemoteAPIClient
-
-    if not 0 < port < 65536:
-        raise ValueError(f"the simulator port must be in 1..65535, got {port}")
-    address = f"tcp://{host}:{port}"
-    remote = RemoteAPIClient(host, port)
-    apply_timeouts(remote, timeout)
-    link = SimulatorLink(remote=remote, sim=None, address=address, timeout=timeout)
-    try:
-        with _translate_remote_errors(link.address, timeout, "fetching the sim API"):
-            link.sim = remote.require("sim")
-    except BaseException:
-        link.close()
-        raise
-    return link
-
-
-@contextmanager
-def _translate_remote_errors(address: str, timeout: float | None, doing: str) -> Iterator[None]:
-    """Turn what the remote API client raises into SimulatorError / SimulatorTimeout."""
-    try:
-        yield
-    except zmq.Again:
-        within = f" within {timeout:g} s" if timeout is not None else ""
-        raise SimulatorTimeout(
-            f"CoppeliaSim at {address} did not answer{within} while {doing} "
-            "(is it running, with the ZeroMQ remote API add-on on that port?)"
-        ) from None
-    except zmq.ZMQError as exc:
-        raise SimulatorConnectionLost(
-            f"ZeroMQ error talking to CoppeliaSim at {address}: {exc}"
-        ) from None
-    except Exception as exc:
-        if type(exc) is not Exception:  # the client raises bare Exception for an error reply
-            raise
-        raise SimulatorError(
-            f"CoppeliaSim refused a call while {doing}: {_one_line(exc)}"
-        ) from None
-
-
-def _one_line(exc: BaseException) -> str:
-    # The remote API server encodes newlines and tabs of Lua tracebacks as _=NL=_ and _=TB=_.
-    text = str(exc).replace("_=NL=_", " ").replace("_=TB=_", " ")
-    return " ".join(text.split()) or type(exc).__name__
+# From the development line after 4.10, sim.initScript may return before the script runs: the
+# first call to its function is retried this long before the batched path is given up.
+SCRIPT_READY_S = 1.0
+SCRIPT_RETRY_S = 0.05
 
 
 # -- what a run reports ---------------------------------------------------------------------
@@ -181,11 +97,13 @@ def _one_line(exc: BaseException) -> str:
 class StepTimings:
     """Wall-clock seconds spent in each part of every step.
 
-    ``query``: the membrane server's ``query``; ``move``: moving every sphere (one call when
-    batched, one per sphere otherwise); ``step``: ``sim.step()`` with its handshake; ``total``:
-    the whole step, reading the simulation time included.
+    ``read``: reading the simulator (the simulation time, or a probe's position); ``query``: the
+    membrane server's answer (a film's ``query``, a live session's ``step``); ``move``: moving
+    every sphere (one call when batched, one per sphere otherwise); ``step``: ``sim.step()``
+    with its handshake; ``total``: the whole step.
     """
 
+    read: list[float] = field(default_factory=list)
     query: list[float] = field(default_factory=list)
     move: list[float] = field(default_factory=list)
     step: list[float] = field(default_factory=list)
@@ -193,7 +111,13 @@ class StepTimings:
 
     def percentiles(self) -> dict[str, dict[str, float]]:
         """``{part: {"p50": s, "p99": s}}`` for the parts measured at least once."""
-        parts = {"query": self.query, "move": self.move, "step": self.step, "total": self.total}
+        parts = {
+            "read": self.read,
+            "query": self.query,
+            "move": self.move,
+            "step": self.step,
+            "total": self.total,
+        }
         return {
             name: {
                 "p50": float(np.percentile(values, 50)),
@@ -277,13 +201,15 @@ class SphereLattice:
 
     Args:
         sim: the ``sim`` object of a ``RemoteAPIClient`` (timeouts applied, see
-            :func:`apply_timeouts`).
+            :func:`~membrane_coppelia.coppelia_link.connect_simulator`).
         client: a membrane client connected to the server (its ``scene`` selects the scene).
         style: size, colour and dynamics flags of the spheres.
         batched: move the lattice with one remote call per step when the simulator allows it.
         keep: leave the lattice in the scene when the context exits (or on :meth:`close`).
         address: CoppeliaSim's endpoint, for messages.
         timeout: the simulator socket's timeout in seconds, for messages.
+        reconnect: opens a fresh connection to the same CoppeliaSim; used to stop the
+            simulation (and remove the lattice) when this one became unusable.
 
     Use as a context manager: on exit the simulation is stopped (if this object started it) and
     the lattice removed, unless ``keep`` was set.
@@ -299,6 +225,7 @@ class SphereLattice:
         keep: bool = False,
         address: str = "CoppeliaSim",
         timeout: float | None = None,
+        reconnect: Callable[[], SimulatorLink] | None = None,
     ) -> None:
         self.sim = sim
         self.client = client
@@ -307,26 +234,47 @@ class SphereLattice:
         self.keep = keep
         self.address = address
         self.timeout = timeout
+        self.reconnect = reconnect
         self.info: SceneInfo | None = None
+        self.calls: SimCalls | None = None
         self.parent: int | None = None
         self.handles: list[int] = []
         self.script: int | None = None
         self.path = PER_SPHERE
         self._running = False
-        self._dead = False  # after a timeout the REQ socket must not be used again
+        self._started = False
+        self._dead = False  # the connection's REQ socket may be stuck: never use it again
+        self._recover_actions: list[Callable[[Any], None]] = []
+
+    @property
+    def dead(self) -> bool:
+        """Whether the connection became unusable (a timeout, an interrupted request)."""
+        return self._dead
+
+    def on_recover(self, action: Callable[[Any], None]) -> None:
+        """Also run ``action(sim)`` when cleaning up over a fresh connection (after the stop;
+        best effort: a failure is logged)."""
+        self._recover_actions.append(action)
 
     # -- building and removing ---------------------------------------------------------------
 
-    def build(self) -> None:
-        """Create the parent dummy and one spheroid per lattice point, at rest positions."""
+    def build(self, info: SceneInfo | None = None) -> None:
+        """Create the parent dummy and one spheroid per lattice point, at rest positions.
+
+        Args:
+            info: the scene's description (default: ``describe`` the client's scene).
+        """
         if self.parent is not None:
             raise RuntimeError("the lattice is already built: remove() it first")
-        info = self.client.describe()
+        info = info or self.client.describe()
         self.info = info
         sim, style = self.sim, self.style
+        with self.calling("reading CoppeliaSim's version"):
+            self.calls = calls = SimCalls(sim, read_version(sim))
+        log.info("connected to %s at %s", calls.name, self.address)
         rest = info.rest_positions()
         log.info("building %d spheres for scene %s in %s", info.n_points, info.name, self.address)
-        with self._remote("building the lattice"):
+        with self.calling("building the lattice"):
             self.parent = sim.createDummy(style.sphere_size)
             sim.setObjectAlias(self.parent, style.name)
             sim.setObjectPosition(self.parent, [0.0, 0.0, 0.0], sim.handle_world)
@@ -334,48 +282,71 @@ class SphereLattice:
             for index, position in enumerate(rest.tolist()):
                 handle = sim.createPrimitiveShape(sim.primitiveshape_spheroid, size, 0)
                 self.handles.append(handle)
-                self._dress(handle, index, position)
+                self._dress(calls, handle, index, position)
         self.path = PER_SPHERE
         if self.want_batched:
-            self._install_batch_script()
+            self._install_batch_script(calls)
         log.info("lattice built: %d spheres, moved %s", len(self.handles), self.path)
 
-    def _dress(self, handle: int, index: int, position: list[float]) -> None:
+    def _dress(self, calls: SimCalls, handle: int, index: int, position: list[float]) -> None:
         sim, style = self.sim, self.style
         sim.setObjectAlias(handle, f"node{index}")
-        sim.setObjectInt32Param(handle, sim.shapeintparam_static, int(style.static))
-        sim.setObjectInt32Param(handle, sim.shapeintparam_respondable, int(style.respondable))
+        calls.set_shape_flags(handle, style.static, style.respondable)
         sim.setShapeColor(handle, None, sim.colorcomponent_ambient_diffuse, list(style.color))
         sim.setObjectParent(handle, self.parent, True)
         sim.setObjectPosition(handle, position, self.parent)
 
-    def _install_batch_script(self) -> None:
+    def _install_batch_script(self, calls: SimCalls) -> None:
         """Install the Lua mover and check it answers; otherwise stay on the per-sphere path."""
-        sim = self.sim
+        if calls.scripts is None:
+            log.warning(
+                "%s has neither sim.createScript (4.7+) nor sim.addScript (4.6): moving sphere "
+                "by sphere, one call per sphere per step",
+                calls.name,
+            )
+            return
         try:
-            with self._remote("installing the batch script"):
-                self.script = sim.createScript(sim.scripttype_customization, BATCH_SCRIPT, 0, "lua")
-                sim.setObjectAlias(self.script, f"{self.style.name}Mover")
-                sim.setObjectParent(self.script, self.parent, True)
-                sim.initScript(self.script)
-                moved = sim.callScriptFunction(BATCH_FUNCTION, self.script, [], [], self.parent)
+            with self.calling("installing the batch script"):
+                alias = f"{self.style.name}Mover"
+                self.script = calls.install_script(BATCH_SCRIPT, self._parent(), alias)
+                self.sim.initScript(self.script)
+            moved = self._first_batch_call()
             if moved != 0:
                 raise SimulatorError(f"the batch script answered {moved!r} to an empty call")
         except SimulatorConnectionLost:
             raise
         except (SimulatorError, AttributeError) as exc:  # AttributeError: no such sim function
-            log.warning("batched moves unavailable, moving sphere by sphere: %s", exc)
-            self._remove_script()
+            log.warning(
+                "batched moves unavailable on %s, moving sphere by sphere: %s", calls.name, exc
+            )
+            self._remove_script(calls)
             return
         self.path = BATCHED
 
-    def _remove_script(self) -> None:
+    def _first_batch_call(self) -> Any:
+        # initScript returns before the script has run in the development line after 4.10: a
+        # function it defines may not exist yet for a moment.
+        deadline = time.monotonic() + SCRIPT_READY_S
+        while True:
+            try:
+                with self.calling("calling the batch script"):
+                    return self.sim.callScriptFunction(
+                        BATCH_FUNCTION, self.script, [], [], self.parent
+                    )
+            except SimulatorConnectionLost:
+                raise
+            except SimulatorError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(SCRIPT_RETRY_S)
+
+    def _remove_script(self, calls: SimCalls) -> None:
         if self.script is None:
             return
         script, self.script = self.script, None
         try:
-            with self._remote("removing the batch script"):
-                self.sim.removeObjects([script])
+            with self.calling("removing the batch script"):
+                calls.remove_script(script)
         except SimulatorConnectionLost:
             raise
         except SimulatorError as exc:
@@ -383,17 +354,23 @@ class SphereLattice:
 
     def remove(self) -> None:
         """Remove every object this lattice created (spheres, script, parent dummy)."""
+        if not self._dead:
+            with self.calling("removing the lattice"):
+                self._remove_with(self.sim)
+        self.handles, self.script, self.parent = [], None, None
+
+    def _remove_with(self, sim: Any) -> None:
         created = [*self.handles]
-        if self.script is not None:
+        if self.script is not None and self.calls is not None and not self.calls.script_objects:
+            sim.removeScript(self.script)  # 4.6: a script is not a scene object
+        elif self.script is not None:
             created.append(self.script)
         if self.parent is not None:
             created.append(self.parent)
-        if created and not self._dead:
-            with self._remote("removing the lattice"):
-                self.sim.removeObjects(created)
-        self.handles, self.script, self.parent = [], None, None
+        if created:
+            sim.removeObjects(created)
 
-    # -- moving and running -----------------------------------------------------------------
+    # -- moving and stepping -----------------------------------------------------------------
 
     def move(self, positions: np.ndarray) -> None:
         """Move every sphere to ``positions`` ((n, 3), relative to the parent dummy)."""
@@ -411,13 +388,53 @@ class SphereLattice:
         for handle, xyz in zip(self.handles, positions.tolist(), strict=True):
             set_position(handle, xyz, parent)
 
+    def start(self) -> float:
+        """Set the scene's time step, enter stepping mode and start; returns the simulator's dt.
+
+        Raises:
+            TimeStepRefused: CoppeliaSim would not take the scene's dt.
+        """
+        sim, info = self.sim, self._info()
+        with self.calling("starting the simulation"):
+            if sim.getSimulationState() != sim.simulation_stopped:
+                log.warning("the simulation was already running; stopping it first")
+                stop_and_wait(sim)
+            self._match_time_step(info.dt)
+            # From here on cleaning up means stopping (which also resets our stepping level):
+            # marked first, so that an interrupt inside either call still leads to a stop.
+            self._running = self._started = True
+            # The remote API add-on resets stepping whenever the simulation stops: set it anew.
+            sim.setStepping(True)
+            sim.startSimulation()
+            sim_dt = float(sim.getSimulationTimeStep())
+        return sim_dt
+
+    def _match_time_step(self, dt: float) -> None:
+        current = float(self.sim.getSimulationTimeStep())
+        if abs(current - dt) <= 1e-12:
+            return
+        calls = self.calls or SimCalls(self.sim)
+        calls.set_time_step(dt)
+        # The user's simulator setting changes (and stays changed): say so, once.
+        log.warning(
+            "changed the simulator's time step from %g s to %g s (the scene's dt); "
+            "it stays so after the run",
+            current,
+            dt,
+        )
+
+    def step(self) -> None:
+        """One simulation step (``sim.step()``: returns when CoppeliaSim has taken it)."""
+        with self.calling("stepping the simulation"):
+            self.sim.step()
+
     def run(
         self,
         duration: float | None = None,
         max_steps: int | None = None,
         on_step: Callable[[int, float], None] | None = None,
     ) -> RunResult:
-        """Run the simulation in stepping mode, showing the served frame at every step.
+        """Run the simulation in stepping mode, showing the served film at every step.
 
         Args:
             duration: simulation time to run to, seconds (default: the scene's end,
@@ -438,44 +455,11 @@ class SphereLattice:
         if max_steps is not None and max_steps < 0:
             raise ValueError(f"max_steps must be >= 0, got {max_steps}")
         try:
-            sim_dt = self._start(info.dt)
+            sim_dt = self.start()
             return self._loop(info, end_t, max_steps, sim_dt, on_step)
         finally:
-            self.stop()
-
-    def _start(self, dt: float) -> float:
-        sim = self.sim
-        with self._remote("starting the simulation"):
-            if sim.getSimulationState() != sim.simulation_stopped:
-                log.warning("the simulation was already running; stopping it first")
-                self._stop_and_wait()
-            self._match_time_step(dt)
-            # The remote API server resets stepping whenever the simulation stops: set it anew.
-            sim.setStepping(True)
-            sim.startSimulation()
-            self._running = True
-            sim_dt = float(sim.getSimulationTimeStep())
-        return sim_dt
-
-    def _match_time_step(self, dt: float) -> None:
-        sim = self.sim
-        try:
-            current = float(sim.getSimulationTimeStep())
-            if abs(current - dt) > 1e-12:
-                sim.setFloatParam(sim.floatparam_simulation_time_step, dt)
-                # The user's simulator setting changes (and stays changed): say so, once.
-                log.warning(
-                    "changed the simulator's time step from %g s to %g s (the scene's dt); "
-                    "it stays so after the run",
-                    current,
-                    dt,
-                )
-        except AttributeError:
-            log.warning("cannot set the simulator's time step to %g s; keeping its own", dt)
-        except Exception as exc:
-            if type(exc) is not Exception:
-                raise
-            log.warning("simulator refused time step %g s (%s); keeping its own", dt, exc)
+            if not self._dead:
+                self.stop()
 
     def _loop(
         self,
@@ -496,7 +480,7 @@ class SphereLattice:
                 reason = MAX_STEPS
                 break
             start = time.perf_counter()
-            with self._remote("reading the simulation time"):
+            with self.calling("reading the simulation time"):
                 t = float(sim.getSimulationTime())
             if t > end_t + slack:
                 break
@@ -513,12 +497,12 @@ class SphereLattice:
                     reason, message = OUT_OF_DOMAIN, f"stopped at t = {t:g} s: {exc.message}"
                     break
             queried = time.perf_counter()
-            with self._remote("moving the spheres"):
+            with self.calling("moving the spheres"):
                 self.move(positions)
             moved = time.perf_counter()
-            with self._remote("stepping the simulation"):
-                sim.step()
+            self.step()
             stepped = time.perf_counter()
+            timings.read.append(clock - start)
             timings.query.append(queried - clock)
             timings.move.append(moved - queried)
             timings.step.append(stepped - moved)
@@ -544,31 +528,70 @@ class SphereLattice:
             last_positions=positions,
         )
 
+    # -- stopping and cleaning up ------------------------------------------------------------
+
     def stop(self) -> None:
-        """Stop the simulation if this lattice started it (and the simulator still answers)."""
-        if self._running and not self._dead:
-            with self._remote("stopping the simulation"):
-                self._stop_and_wait()
+        """Stop the simulation if this lattice started it (from a fresh connection if this
+        one is unusable and ``reconnect`` was given)."""
+        if not self._running:
+            return
+        if not self._dead:
+            with self.calling("stopping the simulation"):
+                stop_and_wait(self.sim)
+        elif self.reconnect is not None:
+            self._recover(remove=False)
+        else:
+            raise SimulatorError(
+                f"the connection to {self.address} was lost: the simulation may still run"
+            )
         self._running = False
 
-    def _stop_and_wait(self) -> None:
-        # CoppeliaSim stops during its next simulation pass, not within the call: wait for it,
-        # or a following start (or removal) could meet a simulation still stopping.
-        sim = self.sim
-        sim.stopSimulation()
-        deadline = time.monotonic() + STOP_WAIT_S
-        while sim.getSimulationState() != sim.simulation_stopped:
-            if time.monotonic() > deadline:
-                raise SimulatorError(f"the simulation did not stop within {STOP_WAIT_S:g} s")
-            time.sleep(0.01)
-
     def close(self) -> None:
-        """Stop the simulation and, unless ``keep``, remove the lattice (no call if dead)."""
+        """Stop the simulation and, unless ``keep``, remove the lattice.
+
+        With an unusable connection both happen over a fresh one (``reconnect``), or not at all.
+        """
+        if not self._dead:
+            try:
+                try:
+                    self.stop()
+                finally:
+                    if not self.keep and not self._dead:
+                        self.remove()
+                return
+            except SimulatorConnectionLost:
+                if self.reconnect is None:
+                    raise
+        if self.reconnect is not None:
+            self._recover(remove=not self.keep)
+        elif self._running:
+            raise SimulatorError(
+                f"the connection to {self.address} was lost: the simulation may still run"
+            )
+
+    def _recover(self, remove: bool) -> None:
+        assert self.reconnect is not None
+        if not self._running and not (remove and self.parent is not None):
+            return
+        log.info("cleaning up over a fresh connection to %s", self.address)
+        link = self.reconnect()
         try:
-            self.stop()
+            with translate_remote_errors(link.address, link.timeout, "cleaning up"):
+                if self._running:
+                    stop_and_wait(link.sim)
+                    self._running = False
+                for action in self._recover_actions:
+                    try:
+                        action(link.sim)
+                    except Exception as exc:
+                        if type(exc) is not Exception:  # not the remote client's error reply
+                            raise
+                        log.warning("cleanup over a fresh connection: %s", one_line(exc))
+                if remove and self.parent is not None:
+                    self._remove_with(link.sim)
+                    self.handles, self.script, self.parent = [], None, None
         finally:
-            if not self.keep:
-                self.remove()
+            link.close()
 
     def __enter__(self) -> SphereLattice:
         return self
@@ -585,7 +608,17 @@ class SphereLattice:
         try:  # cleaning up must not hide the error that ended the run
             self.close()
         except SimulatorError as cleanup_error:
-            log.warning("cleanup after an error failed: %s", cleanup_error)
+            # A simulator that stopped answering cannot be cleaned up either: no second line.
+            same_cause = isinstance(exc, SimulatorConnectionLost) and isinstance(
+                cleanup_error, SimulatorConnectionLost
+            )
+            log.log(
+                logging.INFO if same_cause else logging.WARNING,
+                "cleanup after an error failed: %s",
+                cleanup_error,
+            )
+        if isinstance(exc, Interrupted) and self._started:
+            exc.simulator_released = not self._running
 
     # -- helpers -----------------------------------------------------------------------------
 
@@ -594,16 +627,34 @@ class SphereLattice:
             raise RuntimeError("build() first")
         return self.info
 
+    def _parent(self) -> int:
+        if self.parent is None:
+            raise RuntimeError("build() first")
+        return self.parent
+
     @contextmanager
-    def _remote(self, doing: str) -> Iterator[None]:
+    def calling(self, doing: str) -> Iterator[None]:
+        """Make remote calls: their errors become SimulatorError; after a lost connection, or
+        an interrupt in the middle of a call, no further call is made on it."""
         if self._dead:
-            raise SimulatorError(f"the connection to {self.address} was lost earlier")
+            raise SimulatorConnectionLost(f"the connection to {self.address} was lost earlier")
         try:
-            with _translate_remote_errors(self.address, self.timeout, doing):
+            with translate_remote_errors(self.address, self.timeout, doing):
                 yield
         except SimulatorConnectionLost:
             self._dead = True
             raise
+        except BaseException as exc:
+            if not isinstance(exc, Exception):  # an interrupt: the REQ socket may be stuck
+                self._dead = True
+            raise
+
+
+def simulator_reconnect(
+    host: str, port: int, timeout: float, remote_timeout: float
+) -> Callable[[], SimulatorLink]:
+    """A ``reconnect`` for :class:`SphereLattice`: a fresh connection to the same CoppeliaSim."""
+    return lambda: connect_simulator(host, port, timeout, remote_timeout)
 
 
 def drive_lattice(
@@ -619,6 +670,7 @@ def drive_lattice(
     style: LatticeStyle | None = None,
     sim_timeout: float = 5.0,
     server_timeout: float = 1.0,
+    remote_timeout: float = DEFAULT_REMOTE_TIMEOUT,
     on_step: Callable[[int, float], None] | None = None,
 ) -> RunResult:
     """Connect to a membrane server and to CoppeliaSim, build the lattice, run, clean up.
@@ -629,8 +681,9 @@ def drive_lattice(
         SimulatorTimeout: CoppeliaSim did not answer within ``sim_timeout``.
         SimulatorError: CoppeliaSim refused a call.
         membrane_client.Timeout / ServerError: the membrane server did not answer, or refused.
+        Interrupted: SIGINT or SIGTERM (under ``interrupt_on``); the simulation was stopped.
     """
-    link = connect_simulator(sim_host, sim_port, sim_timeout)
+    link = connect_simulator(sim_host, sim_port, sim_timeout, remote_timeout)
     try:
         with (
             Client(server, timeout=server_timeout, scene=scene) as client,
@@ -642,9 +695,13 @@ def drive_lattice(
                 keep=keep,
                 address=link.address,
                 timeout=sim_timeout,
+                reconnect=simulator_reconnect(sim_host, sim_port, sim_timeout, remote_timeout),
             ) as lattice,
         ):
-            lattice.build()
-            return lattice.run(duration=duration, max_steps=max_steps, on_step=on_step)
+            try:
+                lattice.build()
+                return lattice.run(duration=duration, max_steps=max_steps, on_step=on_step)
+            finally:
+                link.broken = lattice.dead
     finally:
         link.close()

@@ -3,9 +3,14 @@
 This module imports with the core dependencies only; the CoppeliaSim remote API client (the
 ``coppelia`` extra) is imported when the command runs.
 
+With ``--probe OBJECT_PATH`` (a live scene) a scene object presses the tissue each step
+(:mod:`membrane_coppelia.coppelia_probe`); ``--force-signal NAME`` writes the contact force back.
+
 Exit codes: 0 the run ended (its end time, its step limit, or the scene's ``error`` policy
 refusing a time, which is reported); 1 CoppeliaSim or the membrane server did not answer within
-the timeout, or refused a call; 2 bad input (arguments, an unknown scene).
+the timeout, or refused a call; 2 bad input (arguments, an unknown scene, a scene that is not
+live for ``--probe``, no such probe object); 130 / 143 interrupted by SIGINT / SIGTERM (the
+simulation was stopped first, so that CoppeliaSim is not left waiting for this client).
 """
 
 from __future__ import annotations
@@ -14,9 +19,14 @@ import argparse
 import logging
 import sys
 import time
+from typing import TYPE_CHECKING, Any
 
-from membrane_cli.arguments import bounded_float, bounded_int
+from membrane_cli.arguments import UsageError, bounded_float, bounded_int
 from membrane_cli.connection import add_connection_arguments
+from membrane_client.errors import UserError
+
+if TYPE_CHECKING:
+    from membrane_coppelia.coppelia_interrupt import Interrupted
 
 __all__ = ["add_coppelia"]
 
@@ -67,7 +77,7 @@ def add_coppelia(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]
         "--duration",
         type=NON_NEGATIVE,
         default=None,
-        help="simulation time to run to, s (default: the scene's end)",
+        help="simulation time to run to, s (default: the scene's end; with --probe, no end)",
     )
     parser.add_argument(
         "--steps", type=bounded_int(0), default=None, help="stop after this many steps"
@@ -92,6 +102,41 @@ def add_coppelia(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]
         default=5.0,
         help="seconds to wait for each CoppeliaSim reply (default 5)",
     )
+    parser.add_argument(
+        "--remote-timeout",
+        type=POSITIVE,
+        default=20.0,
+        help=(
+            "seconds CoppeliaSim's remote API add-on waits for this client before forgetting it "
+            "(default 20): if the adapter is killed (SIGKILL) mid-run, the simulation is "
+            "released within this time instead of the client library's 600 s"
+        ),
+    )
+    live = parser.add_argument_group("live scenes (a probe presses the tissue)")
+    live.add_argument(
+        "--probe",
+        metavar="OBJECT_PATH",
+        default=None,
+        help=(
+            "a scene object (e.g. /UR5/tip, or a dummy you drag) that presses the tissue: each "
+            "step its position becomes a probe of the live session (needs a live scene)"
+        ),
+    )
+    live.add_argument(
+        "--probe-radius",
+        type=POSITIVE,
+        default=0.05,
+        help="the probe tip's radius in problem units (default 0.05)",
+    )
+    live.add_argument(
+        "--force-signal",
+        metavar="NAME",
+        default=None,
+        help=(
+            "write the contact force to this float signal each step (a scene property "
+            "'signal.NAME' on CoppeliaSim 4.8+, sim.setFloatSignal before); needs --probe"
+        ),
+    )
     parser.set_defaults(handler=_run_coppelia)
 
 
@@ -102,15 +147,18 @@ class _Progress:
         self._last = time.monotonic()
         self._tty = sys.stderr.isatty()
 
-    def __call__(self, steps: int, t: float) -> None:
+    def __call__(self, steps: int, t: float, force: float | None = None) -> None:
         now = time.monotonic()
         if now - self._last < PROGRESS_EVERY_S:
             return
         self._last = now
+        shown = f"step {steps}  t = {t:.3f} s"
+        if force is not None:
+            shown += f"  force = {force:.4g}"
         if self._tty:
-            print(f"\rstep {steps}  t = {t:.3f} s", end="", file=sys.stderr, flush=True)
+            print(f"\r{shown}", end="", file=sys.stderr, flush=True)
         else:
-            log.info("step %d, t = %.3f s", steps, t)
+            log.info("%s", shown)
 
     def done(self) -> None:
         if self._tty:
@@ -120,31 +168,25 @@ class _Progress:
 def _run_coppelia(args: argparse.Namespace) -> int:
     from membrane_client.errors import ServerError, Timeout
     from membrane_client.protocol import ErrorCode
-    from membrane_coppelia.coppelia import (
-        LatticeStyle,
-        SimulatorError,
-        drive_lattice,
-    )
+    from membrane_coppelia.coppelia import LatticeStyle, SimulatorError
+    from membrane_coppelia.coppelia_interrupt import Interrupted, interrupt_on
 
+    if args.force_signal is not None and args.probe is None:
+        raise UsageError("--force-signal needs --probe (the force comes from the probe)")
     style = LatticeStyle(sphere_size=args.sphere_size, color=args.color)
     progress = _Progress()
     try:
-        result = drive_lattice(
-            args.connect,
-            scene=args.scene,
-            sim_host=args.sim_host,
-            sim_port=args.sim_port,
-            duration=args.duration,
-            max_steps=args.steps,
-            batched=not args.per_sphere,
-            keep=args.keep,
-            style=style,
-            sim_timeout=args.sim_timeout,
-            server_timeout=args.timeout,
-            on_step=progress,
-        )
+        with interrupt_on():
+            run = _run_probe if args.probe else _run_film
+            lines = run(args, style, progress)
+    except Interrupted as exc:
+        progress.done()
+        print(f"membrane coppelia: {_interrupted(exc)}", file=sys.stderr)
+        return exc.exit_code
     except SimulatorError as exc:
         progress.done()
+        if isinstance(exc, UserError):
+            raise  # no such probe object: the dispatcher's one line, exit code 2
         print(f"membrane coppelia: {exc}", file=sys.stderr)
         return 1
     except Timeout as exc:
@@ -153,10 +195,79 @@ def _run_coppelia(args: argparse.Namespace) -> int:
         return 1
     except ServerError as exc:
         progress.done()
-        print(f"membrane coppelia: membrane server refused: {exc}", file=sys.stderr)
-        bad_input = exc.code in (ErrorCode.UNKNOWN_SCENE, ErrorCode.INVALID_TIME)
+        hint = " (--probe needs a live scene, e.g. membrane-live)" if exc.code == "not_live" else ""
+        print(f"membrane coppelia: membrane server refused: {exc}{hint}", file=sys.stderr)
+        bad_input = exc.code in (
+            ErrorCode.UNKNOWN_SCENE,
+            ErrorCode.INVALID_TIME,
+            ErrorCode.NOT_LIVE,
+            ErrorCode.BAD_REQUEST,
+        )
         return 2 if bad_input else 1
     progress.done()
-    print(f"scene {result.scene}: {result.spheres} spheres moved {result.path}: {result.message}")
-    print(f"simulator dt {result.sim_dt:g} s; per step p50/p99: {result.timings.summary()}")
+    for line in lines:
+        print(line)
     return 0
+
+
+def _interrupted(exc: Interrupted) -> str:
+    if exc.simulator_released is False:
+        return f"interrupted by {exc.name}; could not stop the simulation (see above)"
+    if exc.simulator_released:
+        return f"interrupted by {exc.name}: stopped the simulation (stepping released)"
+    return f"interrupted by {exc.name}"
+
+
+def _run_film(args: argparse.Namespace, style: Any, progress: _Progress) -> list[str]:
+    from membrane_coppelia.coppelia import drive_lattice
+
+    result = drive_lattice(
+        args.connect,
+        scene=args.scene,
+        sim_host=args.sim_host,
+        sim_port=args.sim_port,
+        duration=args.duration,
+        max_steps=args.steps,
+        batched=not args.per_sphere,
+        keep=args.keep,
+        style=style,
+        sim_timeout=args.sim_timeout,
+        server_timeout=args.timeout,
+        remote_timeout=args.remote_timeout,
+        on_step=progress,
+    )
+    return [
+        f"scene {result.scene}: {result.spheres} spheres moved {result.path}: {result.message}",
+        f"simulator dt {result.sim_dt:g} s; per step p50/p99: {result.timings.summary()}",
+    ]
+
+
+def _run_probe(args: argparse.Namespace, style: Any, progress: _Progress) -> list[str]:
+    from membrane_coppelia.coppelia_probe import drive_probe
+
+    result = drive_probe(
+        args.probe,
+        args.connect,
+        scene=args.scene,
+        radius=args.probe_radius,
+        force_signal=args.force_signal,
+        sim_host=args.sim_host,
+        sim_port=args.sim_port,
+        duration=args.duration,
+        max_steps=args.steps,
+        batched=not args.per_sphere,
+        keep=args.keep,
+        style=style,
+        sim_timeout=args.sim_timeout,
+        server_timeout=args.timeout,
+        remote_timeout=args.remote_timeout,
+        on_step=progress,
+    )
+    lines = [
+        f"scene {result.scene}: {result.spheres} spheres moved {result.path}, pressed by "
+        f"{args.probe}: {result.message}",
+        f"simulator dt {result.sim_dt:g} s; per step p50/p99: {result.timings.summary()}",
+    ]
+    if result.signal is not None:
+        lines.append(f"contact force written each step with {result.signal}")
+    return lines

@@ -1,28 +1,33 @@
-"""A stand-in for CoppeliaSim's ZeroMQ remote API server, for tests and benchmarks.
+"""A stand-in for CoppeliaSim's ZeroMQ remote API add-on, for tests and benchmarks.
 
 It speaks version 2 of the remote API protocol, the one ``coppeliasim-zmqremoteapi-client``
 2.0.4 uses, so that the real client talks to it unmodified:
 
 - a REP socket; every message is one CBOR map;
-- requests ``{"func": NAME, "args": [...], "argsL": n, "uuid": ...}`` (the first also carries
-  ``ver``, ``lang`` and ``timeout``); replies ``{"ret": [values]}`` or ``{"err": message}``;
+- requests ``{"func": NAME, "args": [...], "argsL": n, "uuid": ...}`` (the first of a client also
+  carries ``ver``, ``lang`` and ``timeout``; ``ver`` is not checked, as in the add-on); replies
+  ``{"ret": [values]}`` or ``{"err": message}``; ``_*end*_`` makes the add-on forget a client;
 - ``zmqRemoteApi.require`` / ``zmqRemoteApi.info`` for ``sim``: the info reply maps each
-  function name to ``{"func": {}}`` and each constant to ``{"const": value}``;
-- ``sim.step()`` answers ``{"func": "_*wait*_"}``; the client answers ``_*executed*_`` and gets
-  the final ``{"ret": []}``; the simulation advances one time step in between.
+  function name to ``{"func": {}}`` and each constant to ``{"const": value}``.
 
-Behind it, :class:`FakeScene` records what a lattice driver does to a scene: objects (handles,
-kinds, aliases, parents, sizes, colours, integer parameters), positions, simulation state and time
-(advancing by ``dt`` on each step while running), the stepping level and script objects. Frames
-carry translations only (the fake scene has no orientations). Like CoppeliaSim, stopping the
-simulation restores the positions objects had at its start; the scene keeps the positions at the
-moment of the stop in :attr:`FakeScene.positions_at_stop` for inspection.
+It models the add-on's loop (``ZMQ remote API server.lua``; docs/COPPELIA.md says which version
+was read), because that is where a simulator gets held or released:
 
-The stand-in cannot run Lua: a script function is served by a Python implementation registered
-under its name (the lattice script's :data:`~membrane_coppelia.coppelia_lua.BATCH_FUNCTION`), and
-only when the script's text defines a function of that name.
+- CoppeliaSim runs passes. In each, the add-on handles requests until its message window closes
+  (2 ms per client while the simulation runs, 50 ms while stopped, counted from the first
+  message of the pass). While the simulation runs, a pass does not end while any client in
+  stepping mode (``sim.setStepping(True)``, per client) has not asked for the next step.
+- ``sim.step()`` answers ``_*wait*_``, and again to each ``_*executed*_``, until the pass has
+  ended: at least two waits per step while running (as many as fit in the window), one while
+  stopped.
+- ``sim.stopSimulation`` resets every client's stepping; the simulation then stops over several
+  passes (:class:`~membrane_coppelia.coppelia_fakescene.FakeScene`).
+- A client unheard of for longer than its ``timeout`` (sent with its first request; 600 s when
+  none) is forgotten, one per pass: a stepping client that vanished holds the simulation until
+  then, and no longer.
 
-It measures round trips and our own overhead, nothing of CoppeliaSim's own cost.
+Behind it a :class:`~membrane_coppelia.coppelia_fakescene.FakeScene` plays one release (4.6 to
+4.9). It measures round trips and our own overhead, nothing of CoppeliaSim's own cost.
 
 Run it alone with ``python -m membrane_coppelia.coppelia_standin --port 23000``.
 """
@@ -31,22 +36,28 @@ from __future__ import annotations
 
 import argparse
 import logging
-import re
 import signal
 import sys
 import threading
-from collections import Counter
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from types import FrameType
 from typing import Any
 
 import cbor2
 import zmq
 
-from membrane_coppelia.coppelia_lua import BATCH_FUNCTION
+from membrane_coppelia.coppelia_fakescene import (
+    RELEASES,
+    SIM_CONSTANTS,
+    CallRefused,
+    FakeObject,
+    FakeScene,
+)
 
 __all__ = [
+    "DEFAULT_CLIENT_TIMEOUT",
     "PROTOCOL_VERSION",
     "SIM_CONSTANTS",
     "CallRefused",
@@ -54,6 +65,7 @@ __all__ = [
     "FakeObject",
     "FakeScene",
     "RemoteApiProtocol",
+    "RemoteClient",
     "main",
 ]
 
@@ -63,482 +75,179 @@ PROTOCOL_VERSION = 2
 WAIT = "_*wait*_"
 EXECUTED = "_*executed*_"
 END = "_*end*_"
-
-# The subset of CoppeliaSim's `sim` constants that the lattice driver uses, with CoppeliaSim's
-# values. A real server sends several thousand; clients must read them from the info map.
-SIM_CONSTANTS: dict[str, int] = {
-    "handle_world": -1,
-    "handle_all": -2,
-    "handle_parent": -11,
-    "primitiveshape_plane": 1,
-    "primitiveshape_disc": 2,
-    "primitiveshape_cuboid": 3,
-    "primitiveshape_spheroid": 4,
-    "primitiveshape_cylinder": 5,
-    "primitiveshape_cone": 6,
-    "primitiveshape_capsule": 7,
-    "shapeintparam_static": 3003,
-    "shapeintparam_respondable": 3004,
-    "colorcomponent_ambient_diffuse": 0,
-    "colorcomponent_emission": 3,
-    "scripttype_main": 0,
-    "scripttype_simulation": 1,
-    "scripttype_childscript": 1,
-    "scripttype_addon": 2,
-    "scripttype_customization": 6,
-    "simulation_stopped": 0,
-    "simulation_paused": 8,
-    "simulation_advancing": 16,
-    "simulation_advancing_running": 17,
-    "floatparam_simulation_time_step": 1,
-}
-_C = SIM_CONSTANTS
-_SHAPE_INT_PARAMS = {_C["shapeintparam_static"], _C["shapeintparam_respondable"]}
-_PRIMITIVES = range(_C["primitiveshape_plane"], _C["primitiveshape_capsule"] + 1)
-
-
-class CallRefused(Exception):
-    """A call the fake scene refuses, as CoppeliaSim would; sent back as an ``err`` reply."""
-
-
-Vec3 = tuple[float, float, float]
+DEFAULT_CLIENT_TIMEOUT = 600.0  # the add-on's default: 10 * 60 s
+QUEUE_RUNNING_S = 0.002  # the add-on's message window per client while the simulation runs
+QUEUE_IDLE_S = 0.05  # ... and while it is stopped
+PASS_POLL_S = 0.001  # a pass without messages (the real loop spins; the stand-in naps)
+IDLE_POLL_S = 0.005
 
 
 @dataclass
-class FakeObject:
-    """One object of the fake scene. ``position`` is relative to the parent (-1: the world)."""
+class RemoteClient:
+    """What the add-on keeps about one client (its ``uuid``)."""
 
-    handle: int
-    kind: str  # "shape", "dummy" or "script"
-    alias: str
-    parent: int = -1
-    position: Vec3 = (0.0, 0.0, 0.0)
-    primitive: int | None = None
-    size: Vec3 | None = None
-    colors: dict[int, Vec3] = field(default_factory=dict)
-    int_params: dict[int, int] = field(default_factory=dict)
-    script_type: int | None = None
-    script_text: str = ""
-    script_lang: str = ""
-    script_enabled: bool = True
-    script_initialized: bool = False
+    uuid: str
+    timeout: float
+    idle_since: float
+    stepping: int = 0  # the stepping level: > 0 holds each pass until the client steps
+    desired_step: int = 0  # the pass the client lets the simulation reach
+    in_step: int | None = None  # the pass its pending sim.step began in
+    step_running: bool = False  # whether the simulation ran when that sim.step began
+    waits: int = 0  # _*wait*_ replies sent to it
 
-
-def _vec3(value: object, what: str) -> Vec3:
-    if type(value) is list and len(value) == 3:  # the common case, checked fast
-        x, y, z = value
-        if type(x) is float and type(y) is float and type(z) is float:
-            return (x, y, z)
-    if not isinstance(value, list | tuple) or len(value) != 3:
-        raise CallRefused(f"{what}: expected 3 numbers, got {value!r}")
-    if not all(isinstance(v, int | float) and not isinstance(v, bool) for v in value):
-        raise CallRefused(f"{what}: expected 3 numbers, got {value!r}")
-    return (float(value[0]), float(value[1]), float(value[2]))
-
-
-def _add(a: Vec3, b: Vec3) -> Vec3:
-    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
-
-
-def _sub(a: Vec3, b: Vec3) -> Vec3:
-    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
-
-
-class FakeScene:
-    """The state of a fake CoppeliaSim scene and the ``sim.*`` functions that act on it.
-
-    Args:
-        dt: the simulation time step in seconds (CoppeliaSim's default is 0.05).
-        scripts: offer ``sim.createScript``, ``sim.initScript`` and ``sim.callScriptFunction``
-            (CoppeliaSim 4.6+); ``False`` plays an older version without them.
-    """
-
-    def __init__(self, dt: float = 0.05, *, scripts: bool = True) -> None:
-        if not dt > 0.0:
-            raise ValueError(f"dt must be > 0, got {dt}")
-        self.dt = dt
-        self.scripts = scripts
-        self.objects: dict[int, FakeObject] = {}
-        self.state = _C["simulation_stopped"]
-        self.step_count = 0
-        self.stepping_level = 0
-        self.positions_at_stop: dict[int, Vec3] = {}
-        self.calls: Counter[str] = Counter()
-        self._next_handle = 10
-        self._positions_at_start: dict[int, Vec3] = {}
-
-    # -- what tests look at ------------------------------------------------------------------
-
-    @property
-    def running(self) -> bool:
-        """Whether the simulation is started (and not stopped)."""
-        return self.state != _C["simulation_stopped"]
-
-    @property
-    def time(self) -> float:
-        """Simulation time: steps taken times dt (a product, so it does not drift)."""
-        return self.step_count * self.dt
-
-    def world_position(self, handle: int) -> Vec3:
-        """Position of an object in world coordinates."""
-        obj = self._get(handle)
-        if obj.parent == -1:
-            return obj.position
-        return _add(self.world_position(obj.parent), obj.position)
-
-    def children(self, handle: int) -> list[int]:
-        """Handles of the objects whose parent is ``handle``, in creation order."""
-        return [h for h, o in self.objects.items() if o.parent == handle]
-
-    def of_kind(self, kind: str) -> list[FakeObject]:
-        """All objects of one kind ("shape", "dummy" or "script"), in creation order."""
-        return [o for o in self.objects.values() if o.kind == kind]
-
-    # -- the sim.* functions -----------------------------------------------------------------
-
-    def functions(self) -> dict[str, Callable[..., Any]]:
-        """The ``sim`` functions this scene implements, by their CoppeliaSim names."""
-        functions: dict[str, Callable[..., Any]] = {
-            "getSimulationTime": lambda: self.time,
-            "getSimulationTimeStep": lambda: self.dt,
-            "getSimulationState": lambda: self.state,
-            "startSimulation": self.start_simulation,
-            "stopSimulation": self.stop_simulation,
-            "setStepping": self.set_stepping,
-            "getFloatParam": self.get_float_param,
-            "setFloatParam": self.set_float_param,
-            "createPrimitiveShape": self.create_primitive_shape,
-            "createDummy": self.create_dummy,
-            "createScript": self.create_script,
-            "initScript": self.init_script,
-            "callScriptFunction": self.call_script_function,
-            "removeObjects": self.remove_objects,
-            "getObjectsInTree": self.objects_in_tree,
-            "setObjectAlias": self.set_alias,
-            "getObjectAlias": lambda handle, options=-1: self._get(handle).alias,
-            "setObjectParent": self.set_parent,
-            "getObjectParent": lambda handle: self._get(handle).parent,
-            "setObjectPosition": self.set_position,
-            "getObjectPosition": self.get_position,
-            "setShapeColor": self.set_shape_color,
-            "setObjectInt32Param": self.set_int_param,
-            "getObjectInt32Param": self.get_int_param,
-        }
-        if not self.scripts:
-            for name in ("createScript", "initScript", "callScriptFunction"):
-                del functions[name]
-        return functions
-
-    def start_simulation(self) -> int:
-        if not self.running:
-            self.state = _C["simulation_advancing_running"]
-            self.step_count = 0
-            self._positions_at_start = {h: o.position for h, o in self.objects.items()}
-        return 1
-
-    def stop_simulation(self, wait: bool = False) -> int:
-        if self.running:
-            self.positions_at_stop = {h: self.world_position(h) for h in self.objects}
-            for handle, position in self._positions_at_start.items():
-                if handle in self.objects:
-                    self.objects[handle].position = position
-            self.state = _C["simulation_stopped"]
-            self.step_count = 0
-        # The remote API server resets every client's stepping when the simulation stops.
-        self.stepping_level = 0
-        return 1
-
-    def set_stepping(self, enabled: bool) -> int:
-        previous = self.stepping_level
-        if enabled:
-            self.stepping_level += 1
-        elif self.stepping_level > 0:
-            self.stepping_level -= 1
-        return previous
-
-    def advance(self) -> None:
-        """One simulation step (the effect of ``sim.step()`` while the simulation runs)."""
-        if self.running:
-            self.step_count += 1
-
-    def get_float_param(self, param: int) -> float:
-        if param != _C["floatparam_simulation_time_step"]:
-            raise CallRefused(f"unsupported float parameter {param}")
-        return self.dt
-
-    def set_float_param(self, param: int, value: float) -> int:
-        if param != _C["floatparam_simulation_time_step"]:
-            raise CallRefused(f"unsupported float parameter {param}")
-        if self.running:
-            raise CallRefused("the time step cannot change while the simulation runs")
-        if not isinstance(value, int | float) or not value > 0.0:
-            raise CallRefused(f"invalid time step {value!r}")
-        self.dt = float(value)
-        return 1
-
-    def create_primitive_shape(self, primitive: int, sizes: list[float], options: int = 0) -> int:
-        if primitive not in _PRIMITIVES:
-            raise CallRefused(f"invalid primitive type {primitive!r}")
-        size = _vec3(sizes, "sizes")
-        if min(size) <= 0.0:
-            raise CallRefused(f"sizes must be positive, got {list(size)}")
-        return self._add_object("shape", "Shape", primitive=primitive, size=size)
-
-    def create_dummy(self, size: float, color: object = None) -> int:
-        if not isinstance(size, int | float) or size <= 0.0:
-            raise CallRefused(f"invalid dummy size {size!r}")
-        return self._add_object("dummy", "Dummy", size=(float(size),) * 3)
-
-    def create_script(self, script_type: int, text: str, options: int = 0, lang: str = "") -> int:
-        if script_type not in (_C["scripttype_simulation"], _C["scripttype_customization"]):
-            raise CallRefused(f"unsupported script type {script_type!r}")
-        if not isinstance(text, str):
-            raise CallRefused("the script text must be a string")
-        if lang not in ("", "lua", "python"):
-            raise CallRefused(f"unknown script language {lang!r}")
-        return self._add_object(
-            "script",
-            "Script",
-            script_type=script_type,
-            script_text=text,
-            script_lang=lang or "lua",
-            script_enabled=not (options & 1),
-        )
-
-    def init_script(self, handle: int) -> bool:
-        script = self._get_script(handle)
-        script.script_initialized = script.script_enabled
-        return script.script_initialized
-
-    def call_script_function(self, name: str, handle: int, *args: Any) -> Any:
-        if not isinstance(name, str) or not isinstance(handle, int):
-            raise CallRefused("expected sim.callScriptFunction(functionName, scriptHandle, ...)")
-        script = self._get_script(handle)
-        if not (script.script_enabled and script.script_initialized):
-            raise CallRefused(f"script {handle} is not initialized")
-        defined = re.search(rf"^\s*function\s+{re.escape(name)}\s*\(", script.script_text, re.M)
-        if script.script_lang != "lua" or defined is None:
-            raise CallRefused(f"function {name!r} does not exist in script {handle}")
-        implementation = self._script_functions().get(name)
-        if implementation is None:
-            raise CallRefused(f"the stand-in has no Python implementation of {name!r}")
-        return implementation(*args)
-
-    def remove_objects(self, handles: list[int]) -> None:
-        if not isinstance(handles, list):
-            raise CallRefused("removeObjects expects a list of handles")
-        removed = set(handles)
-        for handle in removed:
-            self._get(handle)
-        # Like CoppeliaSim, the children of a removed object stay, now attached to the world.
-        for handle in removed:
-            for child in self.children(handle):
-                if child not in removed:
-                    self._reparent(child, -1, keep_in_place=True)
-        for handle in removed:
-            del self.objects[handle]
-
-    def objects_in_tree(self, base: int, object_type: int = -2, options: int = 0) -> list[int]:
-        if base == _C["handle_world"] or base == -12:  # the scene: every object
-            found = list(self.objects)
-        else:
-            self._get(base)
-            found = [base]
-            frontier = [base]
-            while frontier:
-                kids = self.children(frontier.pop(0))
-                found.extend(kids)
-                if not options & 2:
-                    frontier.extend(kids)
-            if options & 1:
-                found.remove(base)
-        return found
-
-    def set_alias(self, handle: int, alias: str) -> None:
-        if not isinstance(alias, str) or not alias:
-            raise CallRefused(f"invalid alias {alias!r}")
-        self._get(handle).alias = alias
-
-    def set_parent(self, handle: int, parent: int, keep_in_place: bool = True) -> None:
-        self._get(handle)
-        if parent != -1:
-            self._get(parent)
-            ancestor = parent
-            while ancestor != -1:
-                if ancestor == handle:
-                    raise CallRefused("an object cannot become its own descendant")
-                ancestor = self.objects[ancestor].parent
-        self._reparent(handle, parent, keep_in_place)
-
-    def set_position(self, handle: int, *args: Any) -> None:
-        # Current order (handle, position, relativeTo=-1); the server still accepts the old
-        # order (handle, relativeTo, position).
-        if len(args) == 2 and isinstance(args[0], int) and isinstance(args[1], list):
-            args = (args[1], args[0])
-        if len(args) not in (1, 2):
-            raise CallRefused("expected sim.setObjectPosition(handle, position, relativeTo)")
-        position = _vec3(args[0], "position")
-        relative_to = args[1] if len(args) == 2 else -1
-        world = _add(self._frame_origin(handle, relative_to), position)
-        obj = self._get(handle)
-        obj.position = world if obj.parent == -1 else _sub(world, self.world_position(obj.parent))
-
-    def get_position(self, handle: int, relative_to: int = -1) -> list[float]:
-        origin = self._frame_origin(handle, relative_to)
-        return list(_sub(self.world_position(handle), origin))
-
-    def set_shape_color(
-        self, handle: int, color_name: object, component: int, rgb: list[float]
-    ) -> None:
-        shape = self._get(handle)
-        if shape.kind != "shape":
-            raise CallRefused(f"object {handle} is not a shape")
-        shape.colors[int(component)] = _vec3(rgb, "rgbData")
-
-    def set_int_param(self, handle: int, param: int, value: int) -> None:
-        obj = self._get(handle)
-        if param in _SHAPE_INT_PARAMS and obj.kind != "shape":
-            raise CallRefused(f"parameter {param} applies to shapes only")
-        obj.int_params[int(param)] = int(value)
-
-    def get_int_param(self, handle: int, param: int) -> int:
-        obj = self._get(handle)
-        if param not in obj.int_params:
-            raise CallRefused(f"parameter {param} is not set on object {handle}")
-        return obj.int_params[param]
-
-    # -- the lattice script's function, in Python --------------------------------------------
-
-    def _script_functions(self) -> dict[str, Callable[..., Any]]:
-        return {BATCH_FUNCTION: self._batch_set_positions}
-
-    def _batch_set_positions(
-        self, handles: list[int], xyz: list[float], frame: int | None = None
-    ) -> int:
-        """What ``membraneSetPositions`` in ``coppelia_batch.lua`` does."""
-        if not isinstance(handles, list) or not isinstance(xyz, list):
-            raise CallRefused(f"{BATCH_FUNCTION}: expected a list of handles and a list of floats")
-        count = len(handles)
-        if len(xyz) != 3 * count:
-            raise CallRefused(
-                f"{BATCH_FUNCTION}: {count} handles need {3 * count} coordinates, got {len(xyz)}"
-            )
-        relative_to = _C["handle_world"] if frame is None else frame
-        if relative_to == _C["handle_parent"]:  # a different frame per object: the long way
-            for i, handle in enumerate(handles):
-                self.set_position(handle, xyz[3 * i : 3 * i + 3], relative_to)
-            return count
-        # The same frame for every object: find its origin (and each parent's) once, so that the
-        # stand-in's own work stays small beside the round trip being measured.
-        origin = self._frame_origin(-1, relative_to)
-        parent_origins: dict[int, Vec3] = {-1: (0.0, 0.0, 0.0)}
-        ox, oy, oz = origin
-        for i, handle in enumerate(handles):
-            obj = self._get(handle)
-            x, y, z = _vec3(xyz[3 * i : 3 * i + 3], f"position {i}")
-            parent = obj.parent
-            if parent not in parent_origins:
-                parent_origins[parent] = self.world_position(parent)
-            px, py, pz = parent_origins[parent]
-            obj.position = (ox + x - px, oy + y - py, oz + z - pz)
-        return count
-
-    # -- helpers -----------------------------------------------------------------------------
-
-    def _add_object(self, kind: str, alias: str, **attributes: Any) -> int:
-        handle = self._next_handle
-        self._next_handle += 1
-        self.objects[handle] = FakeObject(handle=handle, kind=kind, alias=alias, **attributes)
-        return handle
-
-    def _get(self, handle: object) -> FakeObject:
-        if not isinstance(handle, int) or handle not in self.objects:
-            raise CallRefused(f"object does not exist: {handle!r}")
-        return self.objects[handle]
-
-    def _get_script(self, handle: object) -> FakeObject:
-        obj = self._get(handle)
-        if obj.kind != "script":
-            raise CallRefused(f"object {handle} is not a script")
-        return obj
-
-    def _frame_origin(self, handle: int, relative_to: object) -> Vec3:
-        if relative_to == _C["handle_world"]:
-            return (0.0, 0.0, 0.0)
-        if relative_to == _C["handle_parent"]:
-            parent = self._get(handle).parent
-            return (0.0, 0.0, 0.0) if parent == -1 else self.world_position(parent)
-        if not isinstance(relative_to, int):
-            raise CallRefused(f"invalid relativeTo {relative_to!r}")
-        return self.world_position(relative_to)
-
-    def _reparent(self, handle: int, parent: int, keep_in_place: bool) -> None:
-        obj = self.objects[handle]
-        world = self.world_position(handle)
-        obj.parent = parent
-        if keep_in_place:
-            obj.position = world if parent == -1 else _sub(world, self.world_position(parent))
+    def holds(self, current_step: int) -> bool:
+        """Whether this client keeps the current pass from ending."""
+        return self.stepping > 0 and self.desired_step <= current_step
 
 
 class RemoteApiProtocol:
-    """Turns decoded remote API requests into replies, acting on a :class:`FakeScene`.
+    """The add-on's side of the protocol: requests to replies, clients and their stepping.
 
-    No sockets here: :class:`CoppeliaStandin` feeds it requests and sends back what it returns.
+    No sockets here: :class:`CoppeliaStandin` feeds it requests, sends back what it returns and
+    ends passes. Thread-safe for readers (:meth:`snapshot`).
     """
 
-    def __init__(self, scene: FakeScene) -> None:
+    def __init__(self, scene: FakeScene, clock: Any = time.monotonic) -> None:
         self.scene = scene
+        self.clock = clock
+        self.clients: dict[str, RemoteClient] = {}
+        self.current_step = 0
+        self.forgotten: list[str] = []  # uuids forgotten after their timeout, in order
         self._functions = scene.functions()
         self._required: set[str] = set()
-        self._stepping_handshake = False  # between a step's _*wait*_ and its _*executed*_
+        self._lock = threading.Lock()
+
+    # -- what tests look at ------------------------------------------------------------------
+
+    def snapshot(self) -> dict[str, RemoteClient]:
+        """A copy of every client's record."""
+        with self._lock:
+            return {uuid: replace(client) for uuid, client in self.clients.items()}
+
+    def held(self) -> bool:
+        """Whether some client in stepping mode holds the running simulation."""
+        with self._lock:
+            return self.scene.running and self._holds()
+
+    # -- the loop's hooks --------------------------------------------------------------------
+
+    def holds(self) -> bool:
+        with self._lock:
+            return self._holds()
+
+    def _holds(self) -> bool:
+        return any(c.holds(self.current_step) for c in self.clients.values())
+
+    def forget_idle(self) -> None:
+        """Forget one client unheard of for longer than its timeout (as the add-on, one per
+        pass)."""
+        now = self.clock()
+        with self._lock:
+            for uuid, client in self.clients.items():
+                if now - client.idle_since > client.timeout:
+                    del self.clients[uuid]
+                    self.forgotten.append(uuid)
+                    log.info("forgot client %s after %g s of silence", uuid, client.timeout)
+                    return
+
+    def end_pass(self) -> None:
+        """A simulation pass ends: the add-on's step counter and the scene advance."""
+        with self._lock:
+            self.current_step += 1
+            self.scene.end_pass()
+            if not self.scene.running:
+                self.current_step = 0  # sysCall_afterSimulation
+
+    # -- requests ----------------------------------------------------------------------------
 
     def reply(self, request: object) -> dict[str, Any]:
         """The reply to one request (never raises)."""
         if not isinstance(request, dict) or "uuid" not in request:
-            # What CoppeliaSim answers to clients of an older protocol.
+            # What the add-on answers to clients of an older protocol.
             return {
                 "success": False,
                 "error": "The client ZeroMQ remote API version does not match CoppeliaSim's",
             }
-        if "ver" in request and request["ver"] != PROTOCOL_VERSION:
-            return {"err": f"unsupported protocol version {request['ver']!r}"}
         func = request.get("func")
         args = request.get("args") or []
+        uuid = str(request["uuid"])
         if not isinstance(func, str) or not isinstance(args, list):
             return {"err": "a request needs 'func' (a string) and 'args' (an array)"}
-        if self._stepping_handshake:
-            return self._finish_step(func)
-        if func == END:
-            return {}
+        with self._lock:
+            if func == END:
+                self.clients.pop(uuid, None)
+                return {}
+            client = self._client(uuid, request.get("timeout"))
+            reply = self._reply(client, func, args)
+            client.idle_since = self.clock()
+            return reply
+
+    def _client(self, uuid: str, timeout: object) -> RemoteClient:
+        client = self.clients.get(uuid)
+        if client is None:  # the timeout counts only when the add-on first sees the client
+            seconds = float(timeout) if isinstance(timeout, int | float) else DEFAULT_CLIENT_TIMEOUT
+            client = RemoteClient(uuid, seconds, self.clock(), desired_step=self.current_step)
+            self.clients[uuid] = client
+        return client
+
+    def _reply(self, client: RemoteClient, func: str, args: list[Any]) -> dict[str, Any]:
+        if client.in_step is not None:
+            return self._continue_step(client, func)
         self.scene.calls[func] += 1
         if func == "sim.step":
-            self._stepping_handshake = True
-            return {"func": WAIT, "args": []}
+            return self._begin_step(client)
         try:
-            return {"ret": _as_ret(self._call(func, args))}
+            return {"ret": _as_ret(self._call(client, func, args))}
         except CallRefused as exc:
             return {"err": f"{exc} (in function '{func}')"}
         except TypeError as exc:  # wrong number of arguments
             return {"err": f"invalid arguments: {exc} (in function '{func}')"}
 
-    def _finish_step(self, func: str) -> dict[str, Any]:
+    def _begin_step(self, client: RemoteClient) -> dict[str, Any]:
+        running = self.scene.running
+        if running and client.stepping > 0:
+            client.desired_step = self.current_step + 1
+        client.in_step, client.step_running = self.current_step, running
+        client.waits += 1
+        return {"func": WAIT, "args": []}
+
+    def _continue_step(self, client: RemoteClient, func: str) -> dict[str, Any]:
         if func != EXECUTED:
+            client.in_step = None
             return {"err": f"expected {EXECUTED!r} during sim.step, got {func!r}"}
-        self._stepping_handshake = False
-        self.scene.advance()
+        if client.step_running and client.in_step == self.current_step:
+            client.waits += 1  # the pass has not ended yet: wait again
+            return {"func": WAIT, "args": []}
+        client.in_step = None
         return {"ret": []}
 
-    def _call(self, func: str, args: list[Any]) -> Any:
+    def _call(self, client: RemoteClient, func: str, args: list[Any]) -> Any:
         if func == "zmqRemoteApi.require":
             return self._require(args)
         if func == "zmqRemoteApi.info":
             return self._info(args)
         module, _, name = func.partition(".")
-        if module != "sim" or name not in self._functions:
+        if module != "sim" or (name not in self._functions and name != "setStepping"):
             raise CallRefused(f"No such function: {func}")
         if module not in self._required:
             raise CallRefused(f"module {module!r} was not required")
+        if name == "setStepping":
+            return self._set_stepping(client, *args)
+        if name == "stopSimulation":
+            for other in self.clients.values():  # the add-on's wrapper of sim.stopSimulation
+                other.stepping = 0
+                other.desired_step = self.current_step + 10
         return self._functions[name](*args)
+
+    def _set_stepping(self, client: RemoteClient, enabled: bool) -> int:
+        previous = client.stepping
+        if enabled:
+            if client.stepping == 0:
+                client.desired_step = self.current_step
+            client.stepping += 1
+        elif client.stepping > 0:
+            client.stepping -= 1
+        return previous
 
     def _require(self, args: list[Any]) -> None:
         if args != ["sim"]:
@@ -550,7 +259,8 @@ class RemoteApiProtocol:
             raise CallRefused(f"no such object: {args!r}")
         info: dict[str, dict[str, Any]] = {name: {"func": {}} for name in self._functions}
         info["step"] = {"func": {}}
-        info.update({name: {"const": value} for name, value in SIM_CONSTANTS.items()})
+        info["setStepping"] = {"func": {}}
+        info.update({name: {"const": value} for name, value in self.scene.constants().items()})
         return info
 
 
@@ -563,7 +273,8 @@ def _as_ret(value: Any) -> list[Any]:
 
 
 class CoppeliaStandin:
-    """The stand-in server: a REP socket on 127.0.0.1 answering from its own thread.
+    """The stand-in server: a REP socket on 127.0.0.1 answering from its own thread, which runs
+    the add-on's pass loop.
 
     Args:
         host: interface to bind (loopback by default).
@@ -571,7 +282,9 @@ class CoppeliaStandin:
         dt: the scene's initial simulation time step in seconds.
         answer_limit: stop answering (keep the socket, never reply) after this many replies;
             ``None`` answers forever. Simulates a CoppeliaSim that hangs.
-        scripts: offer script objects (see :class:`FakeScene`).
+        scripts: offer script calls (see :class:`FakeScene`).
+        version: the CoppeliaSim release played: "4.6", "4.7", "4.8" or "4.9".
+        init_delay_passes: passes before ``sim.initScript`` takes effect (see FakeScene).
 
     Use as a context manager, or call :meth:`start` and :meth:`stop`.
     """
@@ -584,11 +297,16 @@ class CoppeliaStandin:
         dt: float = 0.05,
         answer_limit: int | None = None,
         scripts: bool = True,
+        version: str = "4.9",
+        init_delay_passes: int = 0,
     ) -> None:
-        self.scene = FakeScene(dt, scripts=scripts)
+        self.scene = FakeScene(
+            dt, scripts=scripts, version=version, init_delay_passes=init_delay_passes
+        )
         self.protocol = RemoteApiProtocol(self.scene)
         self.answer_limit = answer_limit
         self.replies = 0
+        self.passes = 0
         self._context = zmq.Context()
         self._socket = self._context.socket(zmq.REP)
         self._socket.setsockopt(zmq.LINGER, 0)
@@ -605,6 +323,10 @@ class CoppeliaStandin:
     def address(self) -> str:
         """The endpoint clients connect to."""
         return f"tcp://{self.host}:{self.port}"
+
+    def stepping_levels(self) -> dict[str, int]:
+        """Each known client's stepping level, by uuid."""
+        return {uuid: c.stepping for uuid, c in self.protocol.snapshot().items()}
 
     def start(self) -> CoppeliaStandin:
         """Serve from a background thread; returns self."""
@@ -634,28 +356,69 @@ class CoppeliaStandin:
     def __exit__(self, *exc_info: object) -> None:
         self.stop()
 
+    # -- the add-on's loop -------------------------------------------------------------------
+
     def serve(self) -> None:
-        """Answer requests until :meth:`stop` (or a signal) sets the stop flag."""
-        poller = zmq.Poller()
-        poller.register(self._socket, zmq.POLLIN)
+        """Run passes until :meth:`stop` (or a signal) sets the stop flag."""
         while not self._stop.is_set():
-            if self.answer_limit is not None and self.replies >= self.answer_limit:
+            if self._hung():
                 self._stop.wait(0.05)  # hung: leave requests unanswered
                 continue
-            if not poller.poll(50):
-                continue
-            raw = self._socket.recv()
-            self._socket.send(cbor2.dumps(self._reply(raw)))
-            self.replies += 1
+            if self.scene.running:
+                self._simulation_pass()
+            else:
+                self._handle_queue(running=False)
+            self.scene.tick()
+            self.passes += 1
 
-    def _reply(self, raw: bytes) -> dict[str, Any]:
+    def _simulation_pass(self) -> None:
+        # sysCall_actuation: the pass ends once no stepping client holds it.
+        while not self._stop.is_set():
+            self._handle_queue(running=True)
+            if self._hung() or not self.protocol.holds():
+                break
+            self.scene.tick()
+        self.protocol.end_pass()
+
+    def _handle_queue(self, running: bool) -> None:
+        # zmqRemoteApi.handleQueue: forget one idle client, then answer requests until the
+        # message window (counted from the pass's start) closes; without requests, return.
+        self.protocol.forget_idle()
+        start = time.monotonic()
+        messages, clients = 0, set[str]()
+        while not self._stop.is_set() and not self._hung():
+            if messages == 0:
+                window = -1.0
+                wait = PASS_POLL_S if running else IDLE_POLL_S
+            else:
+                window = QUEUE_RUNNING_S * len(clients) if running else QUEUE_IDLE_S
+                wait = max(0.0, window - (time.monotonic() - start))
+            if self._socket.poll(round(wait * 1000)):
+                uuid = self._answer_one()
+                messages += 1
+                clients.add(uuid)
+                continue
+            if time.monotonic() - start > window:
+                return
+
+    def _answer_one(self) -> str:
+        raw = self._socket.recv()
+        request, reply = self._reply(raw)
+        self._socket.send(cbor2.dumps(reply))
+        self.replies += 1
+        return str(request.get("uuid")) if isinstance(request, dict) else "?"
+
+    def _hung(self) -> bool:
+        return self.answer_limit is not None and self.replies >= self.answer_limit
+
+    def _reply(self, raw: bytes) -> tuple[object, dict[str, Any]]:
         try:
             request = cbor2.loads(raw)
         except (cbor2.CBORDecodeError, ValueError) as exc:
-            return {"err": f"cannot decode the request as CBOR: {exc}"}
+            return None, {"err": f"cannot decode the request as CBOR: {exc}"}
         reply = self.protocol.reply(request)
         log.debug("%s -> %s", request.get("func") if isinstance(request, dict) else "?", reply)
-        return reply
+        return request, reply
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -667,6 +430,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--port", type=int, default=23000, help="TCP port; 0 picks a free one")
     parser.add_argument("--dt", type=float, default=0.05, help="initial simulation time step (s)")
     parser.add_argument(
+        "--sim-version",
+        choices=sorted(RELEASES),
+        default="4.9",
+        help="the CoppeliaSim release to play (the calls it offers; default 4.9)",
+    )
+    parser.add_argument(
         "--stop-answering-after",
         type=int,
         default=None,
@@ -676,7 +445,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--no-scripts",
         action="store_true",
-        help="offer no script functions (plays a CoppeliaSim older than 4.6)",
+        help="offer no script calls (batched moves unavailable)",
     )
     args = parser.parse_args(argv)
     if not 0 <= args.port <= 65535:
@@ -690,6 +459,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             dt=args.dt,
             answer_limit=args.stop_answering_after,
             scripts=not args.no_scripts,
+            version=args.sim_version,
         )
     except zmq.ZMQError as exc:
         print(f"coppelia stand-in: cannot bind port {args.port}: {exc}", file=sys.stderr)
@@ -700,7 +470,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    print(f"coppelia stand-in listening on {standin.address}", flush=True)
+    # The first line is read by scripts (benchmarks/coppelia_paths.py): keep its start.
+    print(
+        f"coppelia stand-in listening on {standin.address} (CoppeliaSim {args.sim_version})",
+        flush=True,
+    )
     standin.serve()
     standin.stop()
     return 0

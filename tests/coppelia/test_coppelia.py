@@ -6,7 +6,6 @@ import importlib.util
 import json
 import logging
 import os
-import shutil
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -30,11 +29,11 @@ from membrane_coppelia.coppelia import (
     SphereLattice,
     connect_simulator,
 )
-from membrane_coppelia.coppelia_lua import BATCH_FUNCTION, BATCH_SCRIPT_FILE
+from membrane_coppelia.coppelia_compat import SimCalls, SimVersion, TimeStepRefused
+from membrane_coppelia.coppelia_lua import BATCH_FUNCTION
 from membrane_coppelia.coppelia_standin import CoppeliaStandin, FakeScene
 
 REPO = Path(__file__).resolve().parents[2]
-LUA_SCRIPT = REPO / "coppelia" / "membrane_coppelia" / BATCH_SCRIPT_FILE
 SIM_TIMEOUT = 2.0
 
 
@@ -89,48 +88,6 @@ def _expected_world(info: SceneInfo, z: np.ndarray) -> np.ndarray:
 
 def _positions_at_stop(scene: FakeScene, handles: list[int]) -> np.ndarray:
     return np.array([scene.positions_at_stop[h] for h in handles])
-
-
-# -- the Lua script -------------------------------------------------------------------------
-
-
-def test_lua_script_compiles() -> None:
-    luac = shutil.which("luac5.4") or shutil.which("luac")
-    if luac is None:
-        pytest.skip("no Lua compiler (apt-get install lua5.4) to check the script's syntax")
-    result = subprocess.run([luac, "-p", str(LUA_SCRIPT)], capture_output=True, text=True)
-    assert result.returncode == 0, result.stderr
-
-
-LUA_HARNESS = """
-package.preload['sim'] = function()
-    local calls = {}
-    return {handle_world = -1, calls = calls,
-            setObjectPosition = function(h, p, f) calls[#calls + 1] = {h, p[1], p[2], p[3], f} end}
-end
-dofile(arg[1])
-local sim = require('sim')
-print(%(func)s({10, 11}, {1.5, 2, 3, 4, 5, 6}, 7))
-print(%(func)s({12}, {7, 8, 9}))
-for _, c in ipairs(sim.calls) do print(table.concat(c, ' ')) end
-local ok, err = pcall(%(func)s, {10, 11}, {1, 2, 3})
-print(ok, err)
-"""
-
-
-def test_lua_function_moves_every_handle(tmp_path: Path) -> None:
-    lua = shutil.which("lua5.4")
-    if lua is None:
-        pytest.skip("no Lua 5.4 interpreter (apt-get install lua5.4) to run the script")
-    harness = tmp_path / "harness.lua"
-    harness.write_text(LUA_HARNESS % {"func": BATCH_FUNCTION})
-    result = subprocess.run(
-        [lua, str(harness), str(LUA_SCRIPT)], capture_output=True, text=True, timeout=30
-    )
-    assert result.returncode == 0, result.stderr
-    lines = result.stdout.splitlines()
-    assert lines[:5] == ["2", "1", "10 1.5 2 3 7", "11 4 5 6 7", "12 7 8 9 -1"]
-    assert lines[5].startswith("false") and "2 handles need 6 coordinates, got 3" in lines[5]
 
 
 # -- building the lattice -------------------------------------------------------------------
@@ -192,10 +149,10 @@ def test_run_moves_every_sphere_to_the_served_frame(
     np.testing.assert_allclose(_positions_at_stop(scene, handles), expected, rtol=0, atol=1e-6)
     assert result.last_positions is not None
     np.testing.assert_allclose(result.last_positions, expected, rtol=0, atol=1e-6)
-    assert not scene.running and scene.stepping_level == 0
+    assert not scene.running and not any(standin.stepping_levels().values())
     timings = result.timings
-    assert len(timings.query) == len(timings.move) == len(timings.step) == 30
-    assert set(timings.percentiles()) == {"query", "move", "step", "total"}
+    assert len(timings.read) == len(timings.query) == len(timings.move) == 30
+    assert set(timings.percentiles()) == {"read", "query", "move", "step", "total"}
 
 
 def test_changing_the_simulators_time_step_is_logged_once(
@@ -231,7 +188,7 @@ def test_without_script_functions_it_falls_back_to_per_sphere(
         finally:
             connection.close()
         assert result.path == PER_SPHERE and result.steps == 2
-        assert "batched moves unavailable" in caplog.text
+        assert "CoppeliaSim 4.9.0 has neither sim.createScript (4.7+) nor" in caplog.text
         assert old.scene.objects == {}
 
 
@@ -303,6 +260,88 @@ def test_nothing_listening_times_out() -> None:
         connect_simulator("127.0.0.1", port, timeout=0.2)
 
 
+# -- CoppeliaSim 4.6 to 4.9 ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("version", ["4.6", "4.7", "4.8", "4.9"])
+def test_each_version_runs_batched_with_the_calls_it_has(
+    membrane_client: Client, version: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    info = membrane_client.describe()
+    with CoppeliaStandin(version=version) as standin:
+        connection = connect_simulator("127.0.0.1", standin.port, SIM_TIMEOUT)
+        try:
+            with caplog.at_level(logging.WARNING), _lattice(connection, membrane_client) as lattice:
+                lattice.build()
+                handles = list(lattice.handles)
+                shapes = [standin.scene.objects[h] for h in handles]
+                assert all(
+                    s.int_params == {3003: 1, 3004: 1} for s in shapes
+                )  # static, respondable
+                result = lattice.run(max_steps=3)
+        finally:
+            connection.close()
+        scene, calls = standin.scene, standin.scene.calls
+    assert (result.path, result.steps, result.sim_dt) == (BATCHED, 3, info.dt)
+    assert "batched moves unavailable" not in caplog.text
+    served = membrane_client.query(result.last_t)
+    expected = _expected_world(info, served.z)
+    np.testing.assert_allclose(_positions_at_stop(scene, handles), expected, rtol=0, atol=1e-6)
+    assert scene.objects == {} and not scene.running
+    properties = version in ("4.8", "4.9")
+    assert (calls["sim.setBoolProperty"] > 0) is properties
+    assert (calls["sim.setObjectInt32Param"] > 0) is not properties
+    assert (calls["sim.setFloatProperty"], calls["sim.setFloatParam"]) == (
+        (1, 0) if properties else (0, 1)
+    )
+    if version == "4.6":  # scripts are no scene objects: attached, then removed as scripts
+        assert calls["sim.addScript"] == calls["sim.associateScriptWithObject"] == 1
+        assert calls["sim.removeScript"] == 1 and "sim.createScript" not in calls
+    else:
+        assert calls["sim.createScript"] == 1 and "sim.addScript" not in calls
+
+
+def test_an_asynchronous_init_script_is_waited_for(membrane_client: Client) -> None:
+    # The development line after 4.10 returns from sim.initScript before the script runs.
+    with CoppeliaStandin(init_delay_passes=5) as standin:
+        connection = connect_simulator("127.0.0.1", standin.port, SIM_TIMEOUT)
+        try:
+            with _lattice(connection, membrane_client) as lattice:
+                lattice.build()
+                assert lattice.path == BATCHED
+        finally:
+            connection.close()
+        assert standin.scene.calls["sim.callScriptFunction"] > 1  # it had to ask again
+
+
+class _StubSim:
+    """A sim object whose time step call does nothing (as setFloatParam while running)."""
+
+    floatparam_simulation_time_step = 1
+
+    def __init__(self, returned: int = 0) -> None:
+        self.dt, self.returned = 0.05, returned
+
+    def setFloatParam(self, param: int, value: float) -> int:
+        return self.returned
+
+    def getSimulationTimeStep(self) -> float:
+        return self.dt
+
+
+def test_a_time_step_that_did_not_take_is_an_error() -> None:
+    calls = SimCalls(_StubSim(), SimVersion(40700))
+    assert not calls.properties and calls.scripts is None
+    with pytest.raises(TimeStepRefused, match=r"CoppeliaSim 4.7.0 kept its time step at 0.05 s "):
+        calls.set_time_step(0.001)
+    with pytest.raises(TimeStepRefused, match=r"must be in \[0.0001, 10\] s .* dt is 5e-05 s"):
+        calls.set_time_step(5e-5)
+
+
+def test_versions_read_as_people_write_them() -> None:
+    assert str(SimVersion(40902)) == "4.9.2" and SimVersion(41000).major_minor == (4, 10)
+
+
 # -- the command line -----------------------------------------------------------------------
 
 
@@ -313,7 +352,7 @@ def test_cli_runs_half_a_second(
     assert membrane_main([*argv, "--duration", "0.5"]) == 0
     out = capsys.readouterr().out
     assert "scene membrane: 400 spheres moved batched: 51 steps, t = 0 .. 0.5 s" in out
-    assert "per step p50/p99: query" in out
+    assert "per step p50/p99: read " in out and " step " in out
     assert standin.scene.calls["sim.step"] == 51 and standin.scene.objects == {}
 
 

@@ -6,6 +6,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -16,6 +17,7 @@ import zmq
 pytest.importorskip("coppeliasim_zmqremoteapi_client")
 from coppeliasim_zmqremoteapi_client import RemoteAPIClient
 
+from membrane_coppelia.coppelia_fakescene import RELEASES, FakeScene
 from membrane_coppelia.coppelia_lua import BATCH_FUNCTION, BATCH_SCRIPT
 from membrane_coppelia.coppelia_standin import SIM_CONSTANTS, CoppeliaStandin
 
@@ -76,37 +78,190 @@ def test_objects_parents_and_positions(standin: CoppeliaStandin, sim: Any) -> No
     assert standin.scene.objects == {}
 
 
-def test_stepping_handshake_advances_time_by_dt(standin: CoppeliaStandin, sim: Any) -> None:
-    assert sim.setStepping(True) == 0
-    assert sim.setStepping(True) == 1
-    sim.step()  # stopped: the handshake completes, time stays
-    assert sim.getSimulationTime() == 0.0
-    sim.startSimulation()
-    assert sim.getSimulationState() == sim.simulation_advancing_running
-    for _ in range(5):
-        sim.step()
-    assert sim.getSimulationTime() == pytest.approx(0.05, abs=1e-15)
-    assert standin.scene.calls["sim.step"] == 6
-    sim.stopSimulation()
-    assert standin.scene.stepping_level == 0  # reset on stop, as the real server does
-    assert sim.getSimulationTime() == 0.0
+def _wait_until_stopped(sim: Any) -> None:
+    deadline = time.monotonic() + 5.0
+    while sim.getSimulationState() != sim.simulation_stopped:
+        assert time.monotonic() < deadline, "the simulation did not stop"
+        time.sleep(0.005)
 
 
-def test_stop_restores_positions_and_records_them(standin: CoppeliaStandin, sim: Any) -> None:
+def test_stepping_handshake_advances_time_by_dt(standin: CoppeliaStandin) -> None:
+    remote = _remote(standin.port)
+    try:
+        sim = remote.require("sim")
+        assert sim.setStepping(True) == 0
+        assert sim.setStepping(True) == 1
+        sim.step()  # stopped: one wait, and time stays
+        waits = standin.protocol.snapshot()[remote.uuid].waits
+        assert waits == 1 and sim.getSimulationTime() == 0.0
+        sim.startSimulation()
+        assert sim.getSimulationState() == sim.simulation_advancing_firstafterstop
+        time.sleep(0.05)  # held: a stepping client keeps the simulation at its pass
+        assert sim.getSimulationTime() == 0.0
+        for _ in range(5):
+            sim.step()
+        assert sim.getSimulationTime() == pytest.approx(0.05, abs=1e-15)
+        assert sim.getSimulationState() == sim.simulation_advancing_running
+        # Running, each step takes at least two waits (the pass must end in between).
+        assert standin.protocol.snapshot()[remote.uuid].waits - waits >= 2 * 5
+        assert standin.scene.calls["sim.step"] == 6
+        sim.stopSimulation()
+        assert standin.stepping_levels() == {remote.uuid: 0}  # reset by the stop, at once
+        _wait_until_stopped(sim)
+        assert sim.getSimulationTime() == 0.0
+    finally:
+        remote.socket.close(linger=0)
+
+
+def test_stop_takes_several_passes_and_restores_positions() -> None:
+    scene = FakeScene(dt=0.01)
+    ball = scene.create_primitive_shape(4, [0.05] * 3)
+    scene.start_simulation()
+    scene.set_position(ball, [0.0, 0.0, 3.0], -1)
+    scene.end_pass()
+    scene.stop_simulation()
+    states = [scene.state]
+    for _ in range(3):
+        scene.end_pass()
+        states.append(scene.state)
+    assert states == [17, 21, 22, 0]  # running, about to stop, last before stop, stopped
+    assert scene.positions_at_stop[ball] == (0.0, 0.0, 3.0)
+    assert scene.world_position(ball) == (0.0, 0.0, 0.0) and scene.time == 0.0
+
+
+def test_stop_over_the_wire_restores_positions(standin: CoppeliaStandin, sim: Any) -> None:
     ball = sim.createPrimitiveShape(sim.primitiveshape_spheroid, [0.05, 0.05, 0.05], 0)
     sim.startSimulation()
     sim.setObjectPosition(ball, [0.0, 0.0, 3.0], sim.handle_world)
     sim.stopSimulation()
+    _wait_until_stopped(sim)
     assert sim.getObjectPosition(ball) == [0.0, 0.0, 0.0]
     assert standin.scene.positions_at_stop[ball] == (0.0, 0.0, 3.0)
 
 
-def test_time_step_changes_only_while_stopped(standin: CoppeliaStandin, sim: Any) -> None:
-    sim.setFloatParam(sim.floatparam_simulation_time_step, 0.02)
-    assert sim.getSimulationTimeStep() == 0.02
+def test_set_float_param_returns_0_while_running_and_clamps(sim: Any) -> None:
+    step = sim.floatparam_simulation_time_step
+    assert sim.setFloatParam(step, 0.02) == 1 and sim.getSimulationTimeStep() == 0.02
+    assert sim.setFloatParam(step, 1e-6) == 1 and sim.getSimulationTimeStep() == 1e-4
+    assert sim.setFloatParam(step, 20.0) == 1 and sim.getSimulationTimeStep() == 10.0
+    sim.setFloatParam(step, 0.02)
     sim.startSimulation()
-    with pytest.raises(Exception, match="cannot change while the simulation runs"):
-        sim.setFloatParam(sim.floatparam_simulation_time_step, 0.05)
+    assert sim.setFloatParam(step, 0.05) == 0  # no error, and nothing changed
+    assert sim.getSimulationTimeStep() == 0.02
+
+
+def test_properties_and_legacy_signals_are_separate_stores(standin: CoppeliaStandin) -> None:
+    remote = _remote(standin.port)
+    try:
+        sim = remote.require("sim")
+        sim.setFloatProperty(sim.handle_scene, "timeStep", 0.002)
+        assert sim.getSimulationTimeStep() == 0.002
+        sim.setFloatProperty(sim.handle_scene, "signal.force", 1.5)
+        sim.setFloatSignal("force", 2.5)
+        assert sim.getFloatProperty(sim.handle_scene, "signal.force") == 1.5
+        assert sim.getFloatSignal("force") == 2.5
+        assert sim.getFloatSignal("other") is None
+        ball = sim.createPrimitiveShape(sim.primitiveshape_spheroid, [0.05, 0.05, 0.05], 0)
+        sim.setBoolProperty(ball, "dynamic", False)
+        sim.setBoolProperty(ball, "respondable", True)
+        assert standin.scene.objects[ball].int_params == {3003: 1, 3004: 1}
+        with pytest.raises(Exception, match="unknown property 'color'"):
+            sim.setBoolProperty(ball, "color", True)
+    finally:
+        remote.socket.close(linger=0)
+
+
+@pytest.mark.parametrize("version", ["4.6", "4.7", "4.8", "4.9"])
+def test_each_version_offers_its_calls(version: str) -> None:
+    with CoppeliaStandin(version=version) as standin:
+        remote = _remote(standin.port)
+        try:
+            sim = remote.require("sim")
+            assert sim.getInt32Param(sim.intparam_program_version) == RELEASES[version].number
+            assert hasattr(sim, "createScript") is (version != "4.6")
+            assert hasattr(sim, "addScript") is (version == "4.6")
+            assert hasattr(sim, "setFloatProperty") is (version in ("4.8", "4.9"))
+            assert hasattr(sim, "setFloatParam") and hasattr(sim, "setFloatSignal")
+        finally:
+            remote.socket.close(linger=0)
+
+
+def test_46_scripts_are_not_scene_objects() -> None:
+    with CoppeliaStandin(version="4.6") as standin:
+        remote = _remote(standin.port)
+        try:
+            sim = remote.require("sim")
+            holder = sim.createDummy(0.05)
+            script = sim.addScript(sim.scripttype_customizationscript)
+            sim.setScriptStringParam(script, sim.scriptstringparam_text, BATCH_SCRIPT)
+            sim.associateScriptWithObject(script, holder)
+            assert sim.initScript(script) is None
+            assert sim.callScriptFunction(BATCH_FUNCTION, script, [], [], holder) == 0
+            with pytest.raises(Exception, match="object does not exist"):
+                sim.setObjectAlias(script, "mover")
+            sim.removeObjects([holder])  # its script goes with it
+            assert standin.scene.objects == {}
+        finally:
+            remote.socket.close(linger=0)
+
+
+def test_init_script_can_take_effect_passes_later() -> None:
+    with CoppeliaStandin(init_delay_passes=5) as standin:
+        remote = _remote(standin.port)
+        try:
+            sim = remote.require("sim")
+            script = sim.createScript(sim.scripttype_customization, BATCH_SCRIPT, 0, "lua")
+            assert sim.initScript(script) is None
+            with pytest.raises(Exception, match="not initialized"):
+                sim.callScriptFunction(BATCH_FUNCTION, script, [], [])
+            deadline = time.monotonic() + 5.0
+            while not standin.scene.objects[script].script_initialized:
+                assert time.monotonic() < deadline
+                time.sleep(0.01)
+            assert sim.callScriptFunction(BATCH_FUNCTION, script, [], []) == 0
+        finally:
+            remote.socket.close(linger=0)
+
+
+def test_objects_by_path_and_animated(standin: CoppeliaStandin, sim: Any) -> None:
+    robot = sim.createDummy(0.05)
+    sim.setObjectAlias(robot, "robot")
+    tip = sim.createDummy(0.01)
+    sim.setObjectAlias(tip, "tip")
+    sim.setObjectParent(tip, robot, True)
+    assert sim.getObject("/robot/tip") == tip and sim.getObject("/robot") == robot
+    with pytest.raises(Exception, match="object does not exist"):
+        sim.getObject("/tip")  # not at the root
+    assert sim.getObject("/nothing", {"noError": True}) == -1
+    standin.scene.animate(tip, lambda t: (t, 0.0, 1.0))
+    sim.setStepping(True)
+    sim.startSimulation()
+    for _ in range(3):
+        sim.step()
+    assert sim.getObjectPosition(tip, sim.handle_world) == [pytest.approx(0.03), 0.0, 1.0]
+
+
+def test_a_vanished_stepping_client_holds_until_its_timeout(standin: CoppeliaStandin) -> None:
+    stepper = RemoteAPIClient("127.0.0.1", standin.port)
+    stepper.timeout = 0.5  # sent with its first request
+    watcher = _remote(standin.port)
+    try:
+        sim = stepper.require("sim")
+        sim.setStepping(True)
+        sim.startSimulation()
+        sim.step()
+        stepper.socket.close(linger=0)  # gone without a word
+        time.sleep(0.2)
+        assert standin.protocol.held()
+        frozen = watcher.require("sim").getSimulationTime()
+        start = time.monotonic()
+        while standin.protocol.held():
+            assert time.monotonic() - start < 3.0, "still held"
+            time.sleep(0.01)
+        assert standin.protocol.forgotten == [stepper.uuid]
+        assert watcher.require("sim").getSimulationTime() >= frozen
+    finally:
+        watcher.socket.close(linger=0)
 
 
 def test_batch_script_function_moves_objects(standin: CoppeliaStandin, sim: Any) -> None:
@@ -175,11 +330,9 @@ def test_malformed_requests_get_error_replies(standin: CoppeliaStandin) -> None:
     old_client = _raw_round_trip(standin.port, cbor2.dumps({"func": "sim.getObject", "args": []}))
     assert old_client["success"] is False and "version" in old_client["error"]
     assert "err" in _raw_round_trip(standin.port, b"\xff\x00 not cbor")
-    bad_version = {"func": "sim.getSimulationTime", "args": [], "uuid": "u", "ver": 1}
-    assert (
-        "unsupported protocol version"
-        in _raw_round_trip(standin.port, cbor2.dumps(bad_version))["err"]
-    )
+    other_version = {"func": "zmqRemoteApi.require", "args": ["sim"], "uuid": "u", "ver": 1}
+    # The add-on does not check 'ver': the call is served.
+    assert _raw_round_trip(standin.port, cbor2.dumps(other_version)) == {"ret": []}
 
 
 def test_a_standin_that_stops_answering_times_the_client_out() -> None:
@@ -204,7 +357,8 @@ def test_runs_as_a_module_and_stops_on_sigterm() -> None:
         assert process.stdout is not None
         line = process.stdout.readline()
         assert line.startswith("coppelia stand-in listening on tcp://127.0.0.1:"), line
-        port = int(line.rsplit(":", 1)[1])
+        assert line.rstrip().endswith("(CoppeliaSim 4.9)")
+        port = int(line.split()[4].rsplit(":", 1)[1])
         remote = _remote(port)
         sim = remote.require("sim")
         assert sim.getSimulationTimeStep() == 0.01

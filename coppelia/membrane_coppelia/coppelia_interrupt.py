@@ -1,0 +1,79 @@
+"""SIGINT and SIGTERM end a run cleanly: the simulation is stopped, stepping released.
+
+A stepping client that stops talking holds CoppeliaSim's simulation until the remote API add-on
+forgets it (its remote timeout). So Ctrl-C, or a service manager's SIGTERM, must not just kill
+the adapter: :func:`interrupt_on` turns the first of these signals into :class:`Interrupted`,
+raised where the main thread is (in the middle of a remote call, too: pyzmq checks for signals
+while it waits), and the adapter's context managers stop the simulation on the way out (from a
+fresh connection if the interrupted one is stuck mid-request). Further signals while that cleanup
+runs are logged and ignored: every step of it is bounded by the simulator timeout.
+
+Against SIGKILL nothing can run here; the remote timeout set at connection bounds the hold.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from types import FrameType
+
+__all__ = ["Interrupted", "interrupt_on"]
+
+log = logging.getLogger(__name__)
+
+
+class Interrupted(KeyboardInterrupt):
+    """The run was interrupted by a signal (a KeyboardInterrupt: no ``except Exception``
+    swallows it).
+
+    Attributes:
+        signum: the signal's number.
+        simulator_released: set by the lattice's cleanup: True when the simulation it started
+            was stopped (stepping released), False when that failed, None when not known.
+    """
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        self.simulator_released: bool | None = None
+        super().__init__(self.name)
+
+    @property
+    def name(self) -> str:
+        """The signal's name, e.g. 'SIGINT'."""
+        return signal.Signals(self.signum).name
+
+    @property
+    def exit_code(self) -> int:
+        """The shell's convention for a process ended by a signal: 128 + its number."""
+        return 128 + self.signum
+
+
+@contextmanager
+def interrupt_on(*signums: int) -> Iterator[None]:
+    """Within the block, the first of ``signums`` (default SIGINT, SIGTERM) raises Interrupted.
+
+    Only the main thread can install handlers; elsewhere this does nothing.
+    """
+    signums = signums or (signal.SIGINT, signal.SIGTERM)
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    raised = False
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        nonlocal raised
+        if raised:
+            log.warning("%s: already stopping (each step is bounded by the timeouts)", signum)
+            return
+        raised = True
+        raise Interrupted(signum)
+
+    previous = {signum: signal.signal(signum, handler) for signum in signums}
+    try:
+        yield
+    finally:
+        for signum, old in previous.items():
+            signal.signal(signum, old)
