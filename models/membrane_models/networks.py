@@ -8,6 +8,9 @@ Two families, one interface (``SeparableCore``):
   Perdikaris 2021). Its spatial and temporal branches meet in an elementwise product before a
   linear head, so it factors too: A = head weights times spatial features, B = temporal features.
 
+Each network is built from its typed configuration (``architectures``); ``config()`` returns the
+plain form a manifest shows, which ``core_from_config`` rebuilds.
+
 Second derivatives are propagated forward through the layers as jets (value, d/ds, d2/ds2 per
 input direction) instead of by nested autograd: every layer here is elementwise or linear, so the
 chain rule is a few tensor operations and the parameter gradients flow through them as usual.
@@ -25,7 +28,15 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from membrane_errors import UserError
+from membrane_models.architectures import (
+    ArchConfig,
+    FourierSpec,
+    GaussianFeatures,
+    HarmonicFeatures,
+    SpinnConfig,
+    StmsffnConfig,
+    arch_from_dict,
+)
 
 __all__ = [
     "ARCHITECTURES",
@@ -37,6 +48,7 @@ __all__ = [
     "SeparablePINN",
     "TanhMLP",
     "build_core",
+    "core_from_config",
 ]
 
 
@@ -232,27 +244,23 @@ class SeparableCore(nn.Module):
         raise NotImplementedError
 
     def config(self) -> dict[str, Any]:
-        """Plain-data hyperparameters that rebuild this network with ``build_core``."""
+        """Plain-data hyperparameters that rebuild this network with ``core_from_config``."""
         raise NotImplementedError
 
 
-def _fourier(in_dim: int, spec: dict[str, Any], generator: torch.Generator) -> FourierFeatures:
-    """A Fourier embedding from its config: 'harmonic' (k pi, k = 1..m, weights k^-decay) or
-    'gaussian' (frequencies drawn from N(0, sigma^2))."""
-    kind = spec["kind"]
-    m = int(spec["features"])
+def _fourier(in_dim: int, spec: FourierSpec, generator: torch.Generator) -> FourierFeatures:
+    """A Fourier embedding: harmonic (k pi, k = 1..m, weights k^-decay) or Gaussian
+    (frequencies drawn from N(0, sigma^2) with the network's generator)."""
+    m = spec.features
     amplitudes = None
-    if kind == "harmonic":
+    if isinstance(spec, HarmonicFeatures):
         k = torch.arange(1, m + 1, dtype=torch.float64)
         b = math.pi * k.repeat(in_dim, 1)
-        amplitudes = k ** -float(spec.get("decay", 0.0))
-    elif kind == "gaussian":
-        b = float(spec["sigma"]) * torch.randn(in_dim, m, generator=generator, dtype=torch.float64)
+        amplitudes = k ** -float(spec.decay)
     else:
-        raise UserError(f"unknown Fourier feature kind {kind!r} (harmonic, gaussian)")
-    return FourierFeatures(
-        b, include_input=bool(spec.get("include_input", True)), amplitudes=amplitudes
-    )
+        assert isinstance(spec, GaussianFeatures)
+        b = float(spec.sigma) * torch.randn(in_dim, m, generator=generator, dtype=torch.float64)
+    return FourierFeatures(b, include_input=spec.include_input, amplitudes=amplitudes)
 
 
 class SeparablePINN(SeparableCore):
@@ -260,54 +268,39 @@ class SeparablePINN(SeparableCore):
 
     Args:
         spatial_dims: 1 (string) or 2 (membrane).
-        rank: Number of separable terms r.
-        width: Hidden width of every axis network.
-        depth: Number of hidden layers of every axis network.
-        space_features: Fourier embedding of each space axis (None for the raw coordinate).
-        time_features: Fourier embedding of the time axis (None for the raw coordinate).
+        arch: Rank, widths, embeddings and skip paths (``architectures.SpinnConfig``).
         seed: Seed of the (random) Fourier frequencies and of the initial weights.
-        skip: Give every axis network a linear path from its embedding (``AxisNetwork``).
     """
 
-    def __init__(
-        self,
-        spatial_dims: int,
-        rank: int,
-        width: int = 64,
-        depth: int = 3,
-        space_features: dict[str, Any] | None = None,
-        time_features: dict[str, Any] | None = None,
-        seed: int = 0,
-        skip: bool = False,
-    ) -> None:
+    def __init__(self, spatial_dims: int, arch: SpinnConfig, seed: int = 0) -> None:
         super().__init__()
         generator = torch.Generator().manual_seed(seed)
         torch.manual_seed(seed)
         self.spatial_dims = spatial_dims
-        self.rank = rank
-        self._config: dict[str, Any] = {
-            "name": "spinn",
-            "spatial_dims": spatial_dims,
-            "rank": rank,
-            "width": width,
-            "depth": depth,
-            "space_features": space_features,
-            "time_features": time_features,
-            "seed": seed,
-        }
-        if skip:  # only when set, so that earlier checkpoints' configs stay equal
-            self._config["skip"] = True
+        self.rank = arch.rank
+        self.arch = arch
+        self.seed = seed
+        sizes = [arch.width] * arch.depth + [arch.rank]
 
-        def axis(features: dict[str, Any] | None) -> AxisNetwork:
+        def axis(features: FourierSpec | None) -> AxisNetwork:
             embedding = _fourier(1, features, generator) if features else None
             first = embedding.out_dim if embedding is not None else 1
-            return AxisNetwork(embedding, [first] + [width] * depth + [rank], skip=skip)
+            return AxisNetwork(embedding, [first, *sizes], skip=arch.skip)
 
-        self.space_axes = nn.ModuleList(axis(space_features) for _ in range(spatial_dims))
-        self.time_axis = axis(time_features)
+        self.space_axes = nn.ModuleList(axis(arch.space_features) for _ in range(spatial_dims))
+        self.time_axis = axis(arch.time_features)
 
     def config(self) -> dict[str, Any]:
-        return dict(self._config)
+        plain = self.arch.to_dict()
+        skip = {"skip": plain.pop("skip")} if "skip" in plain else {}
+        # The manifests' key order: name, spatial_dims, the architecture, seed (then skip).
+        return {
+            "name": plain.pop("name"),
+            "spatial_dims": self.spatial_dims,
+            **plain,
+            "seed": self.seed,
+            **skip,
+        }
 
     def space(self, x: Tensor) -> Tensor:
         a: Tensor = self.space_axes[0](x[:, 0:1])
@@ -394,33 +387,16 @@ class STMsFFN(SeparableCore):
     B = [H^t_{jc}, 1] (rank n_x * n_t * w + 1).
     """
 
-    def __init__(
-        self,
-        spatial_dims: int,
-        width: int = 100,
-        hidden: int = 3,
-        sigmas_x: Sequence[float] = (1.0,),
-        sigmas_t: Sequence[float] = (1.0, 50.0),
-        shared: bool = True,
-        seed: int = 0,
-    ) -> None:
+    def __init__(self, spatial_dims: int, arch: StmsffnConfig, seed: int = 0) -> None:
         super().__init__()
-        if width % 2:
-            raise UserError(f"STMsFFN width must be even (cos and sin halves), got {width}")
         generator = torch.Generator().manual_seed(seed)
         torch.manual_seed(seed)
         self.spatial_dims = spatial_dims
+        self.arch = arch
+        self.seed = seed
+        width, hidden, shared = arch.width, arch.hidden, arch.shared
+        sigmas_x, sigmas_t = arch.sigmas_x, arch.sigmas_t
         self.width = width
-        self._config: dict[str, Any] = {
-            "name": "stmsffn",
-            "spatial_dims": spatial_dims,
-            "width": width,
-            "hidden": hidden,
-            "sigmas_x": list(sigmas_x),
-            "sigmas_t": list(sigmas_t),
-            "shared": shared,
-            "seed": seed,
-        }
 
         def embed(dim: int, sigma: float) -> FourierFeatures:
             b = sigma * torch.randn(dim, width // 2, generator=generator, dtype=torch.float64)
@@ -439,7 +415,9 @@ class STMsFFN(SeparableCore):
         self.rank = len(sigmas_x) * len(sigmas_t) * width + 1
 
     def config(self) -> dict[str, Any]:
-        return dict(self._config)
+        plain = self.arch.to_dict()
+        return {"name": plain.pop("name"), "spatial_dims": self.spatial_dims, **plain,
+                "seed": self.seed}  # fmt: skip
 
     def _mlp(self, branch: int) -> TanhMLP:
         mlp = self.mlps[0 if self.shared else branch]
@@ -501,13 +479,13 @@ class STMsFFN(SeparableCore):
 ARCHITECTURES: dict[str, type[SeparableCore]] = {"spinn": SeparablePINN, "stmsffn": STMsFFN}
 
 
-def build_core(config: dict[str, Any]) -> SeparableCore:
-    """Rebuild a network from ``config()`` output (the ``name`` key picks the class)."""
-    params = dict(config)
-    name = params.pop("name")
-    try:
-        cls = ARCHITECTURES[name]
-    except KeyError:
-        known = ", ".join(sorted(ARCHITECTURES))
-        raise UserError(f"unknown architecture {name!r}; known: {known}") from None
-    return cls(**params)
+def build_core(arch: ArchConfig, spatial_dims: int, seed: int = 0) -> SeparableCore:
+    """The network an architecture describes, for a problem's dimensions, seeded."""
+    if isinstance(arch, SpinnConfig):
+        return SeparablePINN(spatial_dims, arch, seed)
+    return STMsFFN(spatial_dims, arch, seed)
+
+
+def core_from_config(config: dict[str, Any]) -> SeparableCore:
+    """Rebuild a network from ``config()`` output (its ``name`` picks the architecture)."""
+    return build_core(arch_from_dict(config), int(config["spatial_dims"]), int(config["seed"]))

@@ -12,8 +12,9 @@ domain [0, t_end], fixed (zero) displacement on the whole boundary.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields, replace
-from typing import ClassVar
+from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -23,6 +24,7 @@ from membrane_errors import UserError
 __all__ = [
     "PARAMETER_HELP",
     "PROBLEMS",
+    "ForcedProblem",
     "InvalidProblem",
     "MembraneForced",
     "Problem",
@@ -121,6 +123,25 @@ class Problem:
         return replace(self, **parsed)
 
 
+@runtime_checkable
+class ForcedProblem(Protocol):
+    """A problem driven by f = profile(x[, y]) g_a(t): what training samples of its force.
+
+    The forced string and membrane share it; their profiles take one coordinate array per space
+    axis, hence ``force_profile(coords)`` with the axes as a sequence.
+    """
+
+    @property
+    def h(self) -> float: ...
+
+    @property
+    def a(self) -> float: ...
+
+    def force_profile(self, coords: Sequence[ArrayLike]) -> FloatArray:
+        """The spatial profile at one coordinate array per space axis (broadcast together)."""
+        ...
+
+
 @dataclass(frozen=True)
 class _ForcedMixin:
     """Parameters of the Gaussian-in-space, bump-in-time force f = -h exp(-k r^2) g_a(t)."""
@@ -163,6 +184,11 @@ class StringForced(_ForcedMixin, Problem):
         """f(x, t), broadcasting x against t."""
         return self.force_space(x) * time_bump(t, self.a)
 
+    def force_profile(self, coords: Sequence[ArrayLike]) -> FloatArray:
+        """``force_space`` with its one axis given as a sequence (``ForcedProblem``)."""
+        (x,) = coords
+        return self.force_space(x)
+
 
 @dataclass(frozen=True)
 class MembraneForced(_ForcedMixin, Problem):
@@ -194,6 +220,11 @@ class MembraneForced(_ForcedMixin, Problem):
     def forcing(self, x: ArrayLike, y: ArrayLike, t: ArrayLike) -> FloatArray:
         """f(x, y, t), broadcasting x, y and t."""
         return self.force_space(x, y) * time_bump(t, self.a)
+
+    def force_profile(self, coords: Sequence[ArrayLike]) -> FloatArray:
+        """``force_space`` with its two axes given as a sequence (``ForcedProblem``)."""
+        x, y = coords
+        return self.force_space(x, y)
 
 
 @dataclass(frozen=True)

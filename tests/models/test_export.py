@@ -4,35 +4,33 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 import torch
 
 from membrane_cli.dispatcher import main
+from membrane_models.architectures import (
+    ArchConfig,
+    GaussianFeatures,
+    HarmonicFeatures,
+    SpinnConfig,
+    StmsffnConfig,
+)
 from membrane_models.evaluate import evaluate_model, onnx_session
 from membrane_models.export import PARITY_TOLERANCE, export_checkpoint, export_model
 from membrane_models.manifest import Manifest
 from membrane_models.training import build_model, recipe, train
 from membrane_models.zoo_index import resolve_model
 
-TINY: dict[str, Any] = {
-    "name": "spinn",
-    "rank": 4,
-    "width": 8,
-    "depth": 2,
-    "space_features": {"kind": "harmonic", "features": 3, "include_input": True},
-    "time_features": {"kind": "gaussian", "sigma": 3.0, "features": 3},
-}
-TINY_STMSFFN: dict[str, Any] = {
-    "name": "stmsffn",
-    "width": 8,
-    "hidden": 2,
-    "sigmas_x": [1.0],
-    "sigmas_t": [1.0, 10.0],
-    "shared": False,
-}
+TINY = SpinnConfig(
+    rank=4,
+    width=8,
+    depth=2,
+    space_features=HarmonicFeatures(3),
+    time_features=GaussianFeatures(3, sigma=3.0),
+)
+TINY_STMSFFN = StmsffnConfig(width=8, hidden=2, sigmas_x=(1.0,), sigmas_t=(1.0, 10.0), shared=False)
 
 
 def _relative(a: np.ndarray, b: np.ndarray) -> float:
@@ -49,7 +47,7 @@ def _relative(a: np.ndarray, b: np.ndarray) -> float:
         ("membrane-forced", TINY_STMSFFN),
     ],
 )
-def test_untrained_network_parity(tmp_path: Path, problem: str, arch: dict[str, Any]) -> None:
+def test_untrained_network_parity(tmp_path: Path, problem: str, arch: ArchConfig) -> None:
     model = build_model(recipe(problem, arch=arch))
     graphs = export_model(model, tmp_path / "m.onnx")  # raises ParityError above 1e-5
     assert set(graphs) == {"full", "space", "time"}

@@ -2,39 +2,49 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
 
+from membrane_models.architectures import (
+    GaussianFeatures,
+    HarmonicFeatures,
+    SpinnConfig,
+    StmsffnConfig,
+    arch_from_dict,
+)
 from membrane_models.networks import (
     AxisNetwork,
     SeparableCore,
     SeparablePINN,
     STMsFFN,
-    build_core,
+    core_from_config,
 )
 from membrane_models.problems import StringPlucked, make_problem
 from membrane_models.transforms import PhysicalModel, characteristic_amplitude
+from membrane_models.zoo_index import ZOO_DIR
 
 D = torch.float64
 
 
 def _small_core(name: str, dims: int) -> SeparableCore:
     if name.startswith("spinn"):
-        features = {"kind": "harmonic", "features": 3, "include_input": True}
-        core = SeparablePINN(
-            dims,
+        arch = SpinnConfig(
             rank=5,
             width=8,
             depth=2,
-            space_features=features,
-            time_features={"kind": "gaussian", "sigma": 2.0, "features": 3},
+            space_features=HarmonicFeatures(3),
+            time_features=GaussianFeatures(3, sigma=2.0),
             skip=name == "spinn-skip",
         )
+        core = SeparablePINN(dims, arch)
         for module in core.modules():  # the skip paths start at zero: give them weights
             if isinstance(module, AxisNetwork) and module.skip is not None:
                 torch.nn.init.normal_(module.skip.weight)
         return core
-    return STMsFFN(dims, width=8, hidden=2, sigmas_x=[1.0], sigmas_t=[1.0, 5.0], shared=False)
+    published = StmsffnConfig(width=8, hidden=2, sigmas_x=(1.0,), sigmas_t=(1.0, 5.0), shared=False)
+    return STMsFFN(dims, published)
 
 
 def _autograd_laplacian(values: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
@@ -137,13 +147,30 @@ def test_plucked_model_starts_from_the_pluck() -> None:
     torch.testing.assert_close(u0, torch.from_numpy(problem.triangle(x[:, 0].numpy())))
 
 
-def test_build_core_round_trip_and_unknown_name() -> None:
+def test_config_round_trip_and_unknown_name() -> None:
     for name in ("stmsffn", "spinn", "spinn-skip"):
         core = _small_core(name, 1)
-        assert build_core(core.config()).config() == core.config()
+        assert core_from_config(core.config()).config() == core.config()
+        assert isinstance(core, SeparablePINN | STMsFFN)
+        assert arch_from_dict(core.config()) == core.arch
     assert "skip" not in _small_core("spinn", 1).config()  # earlier checkpoints still match
     with pytest.raises(ValueError, match="unknown architecture"):
-        build_core({"name": "koopman"})
+        core_from_config({"name": "koopman", "spatial_dims": 1, "seed": 0})
+    with pytest.raises(ValueError, match="no field 'depht'"):
+        arch_from_dict({"name": "spinn", "rank": 4, "depht": 2})
+    with pytest.raises(ValueError, match="must be even"):
+        StmsffnConfig(width=7)
+
+
+def test_shipped_manifests_rebuild_with_their_architecture() -> None:
+    # The manifests' plain form is what the typed configs write, key for key and in order.
+    from membrane_models.training import build_model, recipe
+
+    for name in ("string-forced", "membrane-forced", "string-plucked", "string-plucked-smooth"):
+        manifest = json.loads((ZOO_DIR / f"{name}.json").read_text())
+        shipped = {k: v for k, v in manifest["architecture"].items() if k != "transform"}
+        model = build_model(recipe(name))
+        assert list(model.core.config().items()) == list(shipped.items())
 
 
 def test_characteristic_amplitude_is_the_size_of_the_response() -> None:

@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from membrane_errors import UserError
+from membrane_models.architectures import HarmonicFeatures, SpinnConfig, StmsffnConfig
 from membrane_models.exact import exact_solution
 from membrane_models.problems import StringPlucked, make_problem
 from membrane_models.training import (
@@ -20,16 +21,20 @@ from membrane_models.training import (
     recipe,
     train,
 )
+from membrane_models.training.losses import (
+    kink_coefficients,
+    kink_series,
+    sine_coefficients,
+)
 from membrane_models.transforms import initial_shape_jet
 
-TINY_SPINN: dict[str, Any] = {
-    "name": "spinn",
-    "rank": 6,
-    "width": 16,
-    "depth": 2,
-    "space_features": {"kind": "harmonic", "features": 4, "include_input": True},
-    "time_features": {"kind": "harmonic", "features": 4, "include_input": True},
-}
+TINY_SPINN = SpinnConfig(
+    rank=6,
+    width=16,
+    depth=2,
+    space_features=HarmonicFeatures(4),
+    time_features=HarmonicFeatures(4),
+)
 
 
 def _tiny(problem: str, **changes: Any) -> TrainConfig:
@@ -69,14 +74,7 @@ def test_published_configuration_trains_with_initial_terms() -> None:
         "string-forced",
         "stmsffn",
         iterations=30,
-        arch={
-            "name": "stmsffn",
-            "width": 16,
-            "hidden": 2,
-            "sigmas_x": [1.0],
-            "sigmas_t": [1.0, 50.0],
-            "shared": True,
-        },
+        arch=StmsffnConfig(width=16, hidden=2, sigmas_x=(1.0,), sigmas_t=(1.0, 50.0)),
         space_points=64,
         initial_points=32,
     )
@@ -167,59 +165,52 @@ def test_initial_shape_matches_the_exact_solution_at_t0(smoothing: str) -> None:
 def test_modal_term_sees_the_kink_that_points_cannot() -> None:
     # -c^2 times the sine coefficients of w'', by parts: 2 int w'' sin(n pi x) = -2 (n pi)^2 int w
     # sin(n pi x), computed from the triangle itself on a fine midpoint grid.
-    from membrane_models.training import _kink_coefficients
-
     problem = make_problem("string-plucked")
     assert isinstance(problem, StringPlucked)
     x = (np.arange(4000) + 0.5) / 4000
     n = np.arange(1, 6)
     by_parts = -2.0 * (np.pi * n) ** 2 * (np.sin(np.pi * np.outer(n, x)) @ problem.triangle(x))
     expected = -(problem.c**2) * by_parts / 4000
-    got = _kink_coefficients(problem, 5, torch.float64)
+    got = kink_coefficients(problem, 5, torch.float64)
     assert got is not None and got.shape == (5,)
     np.testing.assert_allclose(got.numpy(), expected, rtol=1e-5)
     smooth = make_problem("string-plucked-smooth")
-    assert _kink_coefficients(smooth, 5, torch.float64) is None
+    assert kink_coefficients(smooth, 5, torch.float64) is None
 
 
 def test_pointwise_residual_sees_the_kink_through_its_first_modes() -> None:
     # On a midpoint grid, the series added to the pointwise residual has exactly the Dirac's
     # sine coefficients up to kink_modes and none above.
-    from membrane_models.training import (
-        Collocation,
-        _kink_coefficients,
-        _kink_series,
-        _sine_coefficients,
-    )
+    from membrane_models.training import Collocation
 
     model = build_model(recipe("string-plucked"))
     x = (torch.arange(512, dtype=torch.float64) + 0.5) / 512
     points = Collocation([x], torch.zeros(3, 1, dtype=torch.float64))
-    series = _kink_series(model, 8, points)
+    series = kink_series(model, 8, points)
     assert series is not None and series.shape == (512, 1)
-    coeffs, _ = _sine_coefficients(series, [x], 12)
-    expected = _kink_coefficients(model.problem, 8, torch.float64)
+    coeffs, _ = sine_coefficients(series, [x], 12)
+    expected = kink_coefficients(model.problem, 8, torch.float64)
     assert expected is not None
     np.testing.assert_allclose(coeffs[:8, 0].numpy(), expected.numpy(), rtol=1e-9)
     np.testing.assert_allclose(coeffs[8:, 0].numpy(), 0.0, atol=1e-9 * float(expected.abs().max()))
     smooth = build_model(recipe("string-plucked-smooth"))
-    assert _kink_series(smooth, 8, points) is None
+    assert kink_series(smooth, 8, points) is None
 
 
 @pytest.mark.parametrize(("every", "grids"), [(0, 1), (5, 3)])
 def test_lbfgs_grid_is_redrawn_on_schedule_or_kept(
     monkeypatch: pytest.MonkeyPatch, every: int, grids: int
 ) -> None:
-    import membrane_models.training as training
+    import membrane_models.training.loop as loop
 
     drawn: list[bool] = []
-    original = training.sample_collocation
+    original = loop.sample_collocation
 
     def counting(problem: Any, config: TrainConfig, generator: Any, fine: bool = False) -> Any:
         drawn.append(fine)
         return original(problem, config, generator, fine=fine)
 
-    monkeypatch.setattr(training, "sample_collocation", counting)
+    monkeypatch.setattr(loop, "sample_collocation", counting)
     config = _tiny("string-forced", lbfgs_resample_every=every)  # 15 L-BFGS iterations
     train(config, progress=False)
     assert sum(drawn) == grids
@@ -230,25 +221,21 @@ def test_lbfgs_grid_is_redrawn_on_schedule_or_kept(
 def test_projected_residual_is_the_projection_of_the_pointwise_residual(problem: str) -> None:
     # By parts on a uniform grid against the pointwise residual projected on a fine one
     # (the kinked pluck's Dirac added analytically on both sides).
-    from membrane_models.training import (
-        _forcing_grid,
-        _kink_coefficients,
-        _projected_residual,
-        _sine_coefficients,
-    )
+    from membrane_models.training.collocation import forcing_grid
+    from membrane_models.training.losses import projected_residual
 
     model = build_model(recipe(problem))
     with torch.no_grad():
-        coeffs, wavenumber, times = _projected_residual(model, 6, 256)
+        coeffs, wavenumber, times = projected_residual(model, 6, 256)
         dims = model.spatial_dims
         n = 2048 if dims == 1 else 256
         axis = (torch.arange(n, dtype=torch.float64) + 0.5) / n
         space, time = model.space_grid_jet([axis] * dims), model.time_jet(times)
         c2 = model.problem.c**2
         residual = space.value @ time.d2[0].T - c2 * space.laplacian() @ time.value.T
-        residual = residual - _forcing_grid(model.problem, [axis] * dims, times[:, 0])
-        expected, _ = _sine_coefficients(residual, [axis] * dims, 6)
-        kink = _kink_coefficients(model.problem, 6, torch.float64)
+        residual = residual - forcing_grid(model.problem, [axis] * dims, times[:, 0])
+        expected, _ = sine_coefficients(residual, [axis] * dims, 6)
+        kink = kink_coefficients(model.problem, 6, torch.float64)
         if kink is not None:
             expected = expected + kink[:, None]
     assert coeffs.shape == expected.shape == (6**dims, 256)
