@@ -45,6 +45,7 @@ EXTRA_FOR_MODULE: dict[str, str] = {
     "tqdm": "bench",
     "hdrh": "bench",
     "matplotlib": "plot",
+    "aiohttp": "view",
     "coppeliasim_zmqremoteapi_client": "coppelia",
     "cbor2": "coppelia",
 }

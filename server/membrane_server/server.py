@@ -120,7 +120,7 @@ class Server:
         self._sources = list(scenes)  # kept so that a reload re-reads names and files
         self._threads = threads
         self.stats = Stats()
-        self.sessions = sessions or SessionTable()
+        self.sessions = sessions if sessions is not None else SessionTable()  # empty is falsy
         served = _load_scenes(self._sources, threads)
         self.dispatcher = Dispatcher(served, self.stats.snapshot, self.sessions)
         self.bind = bind

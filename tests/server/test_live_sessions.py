@@ -257,3 +257,17 @@ def test_the_wire_session_follows_the_engine_exactly(membrane_live: ServedScene)
             assert frame.probes[0].force == result.probes[0].force
             assert frame.z is not None and result.frame is not None
             np.testing.assert_array_equal(frame.z.reshape(-1), result.frame.astype("<f4"))
+
+
+def test_a_server_keeps_the_session_table_it_is_given() -> None:
+    """An empty table is falsy (it has a length): the server must still use it, not a default."""
+    from membrane_server.server import Server
+
+    table = SessionTable(max_sessions=1, idle_s=5.0)
+    server = Server(["membrane-live"], bind="tcp://127.0.0.1:*", sessions=table)
+    assert server.sessions is table and server.dispatcher.sessions is table
+    with Client("in-process://live", transport=InProcessTransport(server.dispatcher)) as client:
+        client.session()
+        with pytest.raises(ServerError) as refused:
+            client.session()
+        assert _code(refused) == ErrorCode.TOO_MANY_SESSIONS

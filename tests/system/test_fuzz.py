@@ -101,8 +101,8 @@ FIELDS = ("v", "id", "op", "scene", "t", "dtype", "session")
 VALID: dict[str, st.SearchStrategy[Any]] = {
     "v": st.just(1),
     "id": st.integers(0, 2**63 - 1),
-    # Queries are where most rules live: half the requests are queries.
-    "op": st.sampled_from([str(Op.QUERY)] * 4 + [str(op) for op in Op]),
+    # Queries are where most rules live; opens reach the live refusals (every scene is a film).
+    "op": st.sampled_from([str(Op.QUERY)] * 8 + [str(Op.OPEN)] * 2 + [str(op) for op in Op]),
     "scene": st.sampled_from(["edge", *SCENE_NAMES]),  # 'edge' twice: its policy is 'error'
     "t": times,
     "dtype": st.one_of(st.sampled_from(ARRAY_DTYPES), st.just(MISSING)),
