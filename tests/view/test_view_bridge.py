@@ -14,6 +14,8 @@ import pytest
 from view_fixtures import BridgeFactory
 
 from membrane_client.client import Client
+from membrane_server.dispatch import Dispatcher
+from membrane_server.in_process import InProcessTransport
 from membrane_server.server import Server
 from membrane_view.wire import (
     FLAG_CONTACT,
@@ -206,3 +208,25 @@ def test_a_lost_session_is_shown_and_a_new_one_opened(
     error, after = asyncio.run(run())
     assert "session lost" in error and "no open session" in error, error
     assert after[0].k < 300 and after[-1].k > after[0].k  # a new session, stepping again
+
+
+def test_the_scene_message_carries_a_point_lists_points_and_no_grids() -> None:
+    from membrane_server.dispatch import ServedScene
+    from membrane_server.scene import scene_from_dict
+    from membrane_view.bridge import BridgeConfig, scene_message
+
+    listed = scene_from_dict(
+        {"name": "few", "model": "membrane-forced", "evaluator": "exact",
+         "lattice": {"points": [[0.1, 0.2], [0.9, 0.4], [0.5, 0.5]]}, "dt": 0.01, "duration": 1.0}
+    )  # fmt: skip
+    grid = scene_from_dict(
+        {"name": "grid", "model": "membrane-forced", "evaluator": "exact",
+         "lattice": {"nx": 4, "ny": 3}, "dt": 0.01, "duration": 1.0}
+    )  # fmt: skip
+    config = BridgeConfig(connect="tcp://127.0.0.1:9")
+    for scene, points in ((listed, [[0.1, 0.2], [0.9, 0.4], [0.5, 0.5]]), (grid, None)):
+        served = ServedScene.load(scene)
+        with Client("in-process://", transport=InProcessTransport(Dispatcher([served]))) as c:
+            message = scene_message(c.describe(), config)
+        assert message["points"] == points
+        json.dumps(message)  # the page gets it as JSON

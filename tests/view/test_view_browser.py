@@ -4,6 +4,7 @@ only when no Chromium or no Playwright is installed (`.ci/run` installs Chromium
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 from collections.abc import Iterator
@@ -128,3 +129,26 @@ def test_the_webgl_surface_draws_and_a_press_on_it_gives_a_force(
         colours = image.convert("RGB").getcolors(maxcolors=1 << 20)
     assert colours is not None and len(colours) > 50, "the WebGL canvas is blank"
     page.mouse.up()
+
+
+def test_a_point_list_is_drawn_where_its_points_are(
+    page: Any, start_server: Any, start_bridge: BridgeFactory
+) -> None:
+    """A membrane's explicit point list (no grid): a scatter of discs coloured by displacement."""
+    from membrane_server.scene import scene_from_dict
+
+    ring = [[0.5 + 0.3 * math.cos(a / 10), 0.5 + 0.3 * math.sin(a / 10)] for a in range(63)]
+    scene = scene_from_dict(
+        {"name": "ring", "model": "membrane-forced", "evaluator": "exact",
+         "lattice": {"points": [[0.8, 0.5], *ring]}, "dt": 0.01, "duration": 1.0}
+    )  # fmt: skip
+    server = start_server([scene])
+    bridge = start_bridge(server.address, scene="ring", speed=0.5)
+    page.goto(bridge.url)
+    page.wait_for_function("window.membraneView.framesDrawn > 5", timeout=15000)
+    first = _canvas_pixels(page)
+    page.wait_for_function("window.membraneView.framesDrawn > 20", timeout=15000)
+    assert len(set(first)) > 10, "the canvas is blank"
+    assert first != _canvas_pixels(page), "the canvas did not change between two frames"
+    assert page.evaluate("window.membraneView.frame.z.length") == 64
+    assert page.locator("#error").is_hidden()

@@ -127,6 +127,9 @@ def scene_message(info: SceneInfo, config: BridgeConfig) -> dict[str, Any]:
         "depth_max": 0.02 * extent,
         "radius": 0.05 * extent,
         "min_radius": float(info.live.get("min_radius", 0.0)) if live else 0.0,
+        # A point list (shape (n,)) is drawn where its points are: a rope along their x, a
+        # membrane's points as a scatter. Grids need none (their shape says it all).
+        "points": points.tolist() if len(info.shape) == 1 else None,
     }
 
 

@@ -60,10 +60,12 @@ export class HeatMap {
 }
 
 export class Rope {
-  constructor(canvas, shape) {
+  // `xs`: each point's x in [0, 1] across the canvas (a point list's own), or null for a grid.
+  constructor(canvas, shape, xs = null) {
     this.canvas = canvas;
     this.ctx = canvas.getContext("2d");
     this.n = shape[0];
+    this.xs = xs;
     this.scale = 1e-12;
   }
 
@@ -84,13 +86,49 @@ export class Rope {
     ctx.lineWidth = 3;
     ctx.beginPath();
     for (let k = 0; k < n; k++) {
-      const x = (k / Math.max(n - 1, 1)) * w, y = mid - z[k] * amp;
+      const u = this.xs ? this.xs[k] : k / Math.max(n - 1, 1);
+      const x = u * w, y = mid - z[k] * amp;
       if (k === 0) ctx.moveTo(x, y); else ctx.lineTo(x, y);
     }
     ctx.stroke();
     if (probe) {
       ctx.fillStyle = "#fff";
       ctx.fillRect(probe.px - 3, 0, 6, mid - 4);
+    }
+  }
+}
+
+// A membrane's point list: each point a disc at its (x, y), coloured by its displacement.
+export class Scatter {
+  constructor(canvas, points, lo, hi) {
+    this.canvas = canvas;
+    this.ctx = canvas.getContext("2d");
+    const span = [Math.max(hi[0] - lo[0], 1e-12), Math.max(hi[1] - lo[1], 1e-12)];
+    this.uv = points.map(([x, y]) => [(x - lo[0]) / span[0], (y - lo[1]) / span[1]]);
+    this.scale = 1e-12;
+  }
+
+  draw(z, probe) {
+    const { ctx, canvas, uv } = this;
+    let peak = 0;
+    for (let k = 0; k < z.length; k++) peak = Math.max(peak, Math.abs(z[k]));
+    this.scale = Math.max(peak, this.scale * 0.995, 1e-12);
+    const w = canvas.width, h = canvas.height, pad = 12;
+    const r = Math.max(3, 0.5 * Math.min(w, h) / Math.sqrt(uv.length + 1));
+    ctx.fillStyle = "#000";
+    ctx.fillRect(0, 0, w, h);
+    uv.forEach(([u, v], k) => {
+      const [red, green, blue] = colour(z[k] / this.scale);
+      ctx.fillStyle = `rgb(${red},${green},${blue})`;
+      ctx.beginPath();
+      ctx.arc(pad + u * (w - 2 * pad), pad + v * (h - 2 * pad), r, 0, 2 * Math.PI);
+      ctx.fill();
+    });
+    if (probe) {
+      ctx.strokeStyle = "#fff";
+      ctx.beginPath();
+      ctx.arc(probe.px, probe.py, Math.max(4, probe.pr), 0, 2 * Math.PI);
+      ctx.stroke();
     }
   }
 }

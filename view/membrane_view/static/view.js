@@ -1,6 +1,6 @@
 // The page: a WebSocket from the bridge (membrane_view.bridge), frames drawn on a canvas,
 // a probe driven by the pointer. State for tests and benchmarks is on window.membraneView.
-import { ForcePlot, HeatMap, Rope } from "./render2d.js";
+import { ForcePlot, HeatMap, Rope, Scatter } from "./render2d.js";
 import { Surface3D } from "./render3d.js";
 import { decodeFrame } from "./wire.js";
 
@@ -28,6 +28,19 @@ function showStatus(message) {
   $("status").textContent = message;
 }
 
+// A grid's heat map or rope; a point list where its points are (a scatter on a membrane).
+function canvasRenderer(scene) {
+  if (scene.shape.length === 2) return new HeatMap(surface, scene.shape);
+  const points = scene.points;
+  if (points && points.length && points[0].length === 2) {
+    surface.height = surface.width;
+    return new Scatter(surface, points, scene.lo, scene.hi);
+  }
+  const span = Math.max(scene.hi[0] - scene.lo[0], 1e-12);
+  const xs = points ? points.map(([x]) => (x - scene.lo[0]) / span) : null;
+  return new Rope(surface, scene.shape, xs);
+}
+
 function onScene(scene) {
   state.scene = scene;
   $("title").textContent = `membrane view: ${scene.name}`;
@@ -43,7 +56,7 @@ function onScene(scene) {
     }
   }
   if (!state.renderer) {
-    state.renderer = twoD ? new HeatMap(surface, scene.shape) : new Rope(surface, scene.shape);
+    state.renderer = canvasRenderer(scene);
     state.rendererName = "canvas2d";
   }
   $("probe-panel").hidden = !scene.live;
