@@ -1,7 +1,7 @@
 """Figures for docs/VIEW.md (not a test): the page's own draw rate in headless Chromium for the
 20 x 20 membrane and a 100 x 100 lattice, the bridge's time per frame, and the README's screenshot.
 
-    .venv/bin/python tests/view/measure_view.py [--screenshot docs/view.png] [--seconds 5]
+    .venv/bin/python benchmarks/view_rates.py [--screenshot docs/view.png] [--seconds 5]
 
 Servers and bridges run in this process on loopback, as in the tests.
 """
@@ -14,8 +14,8 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).parent))
-sys.path.insert(0, str(Path(__file__).parents[1] / "helpers"))
+sys.path.insert(0, str(Path(__file__).parents[1] / "tests" / "view"))  # the tests' bridge thread
+sys.path.insert(0, str(Path(__file__).parents[1] / "tests" / "helpers"))
 
 from playwright.sync_api import sync_playwright
 from view_fixtures import BridgeThread
