@@ -42,7 +42,7 @@ from membrane_client.errors import ServerError
 from membrane_client.frame import SceneInfo
 from membrane_client.protocol import ErrorCode
 from membrane_coppelia.coppelia_compat import SimCalls, read_version
-from membrane_coppelia.coppelia_interrupt import Interrupted
+from membrane_coppelia.coppelia_interrupt import Interrupted, raise_if_interrupted
 from membrane_coppelia.coppelia_link import (
     DEFAULT_REMOTE_TIMEOUT,
     DEFAULT_SIM_HOST,
@@ -476,6 +476,7 @@ class SphereLattice:
         reason, message = COMPLETED, ""
         slack = 1e-6 * sim_dt  # float noise of the simulator's clock, not a real overshoot
         while True:
+            raise_if_interrupted()  # a signal whose exception a finalizer swallowed
             if max_steps is not None and steps >= max_steps:
                 reason = MAX_STEPS
                 break

@@ -20,9 +20,21 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 
-__all__ = ["Interrupted", "interrupt_on"]
+__all__ = ["Interrupted", "interrupt_on", "raise_if_interrupted"]
 
 log = logging.getLogger(__name__)
+
+# The signal received under ``interrupt_on``, until the block ends. The handler raises at once,
+# but an exception raised while a finalizer runs (a ``__del__``, a weakref callback: the
+# interpreter may run one between any two bytecodes) is printed as "Exception ignored" and
+# lost; the run loops call ``raise_if_interrupted`` every step so that it is raised again there.
+_pending: list[int] = []
+
+
+def raise_if_interrupted() -> None:
+    """Raise ``Interrupted`` if a signal arrived under ``interrupt_on`` (for run loops)."""
+    if _pending:
+        raise Interrupted(_pending[0])
 
 
 class Interrupted(KeyboardInterrupt):
@@ -69,11 +81,13 @@ def interrupt_on(*signums: int) -> Iterator[None]:
             log.warning("%s: already stopping (each step is bounded by the timeouts)", signum)
             return
         raised = True
+        _pending.append(signum)
         raise Interrupted(signum)
 
     previous = {signum: signal.signal(signum, handler) for signum in signums}
     try:
         yield
     finally:
+        _pending.clear()
         for signum, old in previous.items():
             signal.signal(signum, old)

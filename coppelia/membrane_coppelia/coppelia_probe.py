@@ -40,6 +40,7 @@ from membrane_coppelia.coppelia import (
     simulator_reconnect,
 )
 from membrane_coppelia.coppelia_compat import SimCalls
+from membrane_coppelia.coppelia_interrupt import raise_if_interrupted
 from membrane_coppelia.coppelia_link import (
     DEFAULT_REMOTE_TIMEOUT,
     DEFAULT_SIM_HOST,
@@ -257,6 +258,7 @@ def _loop(
     timings, sim, parent = result.timings, lattice.sim, lattice.parent
     end_k = math.inf if duration is None else round(duration / info.dt)
     while result.steps < end_k:
+        raise_if_interrupted()  # a signal whose exception a finalizer swallowed
         if max_steps is not None and result.steps >= max_steps:
             result.reason = MAX_STEPS
             break

@@ -142,3 +142,21 @@ def test_after_sigkill_the_simulator_is_released_within_the_remote_timeout(
     assert remote_timeout - 0.3 < released_after < remote_timeout + 2.0
     assert len(standin.protocol.forgotten) == 1
     _wait_for(lambda: standin.scene.time > frozen_at, 2.0, "the simulation running on")
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")  # the swallowing
+def test_a_signal_swallowed_by_a_finalizer_is_raised_again_by_the_run_loop() -> None:
+    """A handler that runs inside a ``__del__`` raises into the void ("Exception ignored"): the
+    run loops' ``raise_if_interrupted`` must raise it again, or the adapter runs on."""
+    from membrane_coppelia.coppelia_interrupt import Interrupted, interrupt_on, raise_if_interrupted
+
+    class SignalsWhenCollected:
+        def __del__(self) -> None:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    with interrupt_on():
+        SignalsWhenCollected()  # collected at once: the handler runs in its __del__
+        with pytest.raises(Interrupted) as raised:
+            raise_if_interrupted()
+        assert raised.value.signum == signal.SIGINT
+    raise_if_interrupted()  # outside the block nothing is pending
