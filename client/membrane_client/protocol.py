@@ -19,6 +19,8 @@ from membrane_client.errors import ProtocolError, ServerError, UserError
 
 __all__ = [
     "ARRAY_DTYPES",
+    "MAX_ARRAY_DIMS",
+    "MAX_ERROR_CHARS",
     "MAX_LATTICE_POINTS",
     "MAX_LIVE_POINTS",
     "MAX_LOADS",
@@ -27,6 +29,7 @@ __all__ = [
     "MAX_REPLY_BYTES",
     "MAX_REQUEST_BYTES",
     "MAX_SESSION_CHARS",
+    "MAX_TOKEN_CHARS",
     "PROTOCOL_VERSION",
     "Domain",
     "ErrorCode",
@@ -53,6 +56,12 @@ MAX_REQUEST_BYTES = 128 * 1024
 MAX_REPLY_BYTES = 64 * 1024 * 1024
 MAX_LATTICE_POINTS = 65_536
 MAX_SESSION_CHARS = 64
+MAX_TOKEN_CHARS = 64  # a live Session's re-send token (``token``)
+# No array of the protocol has more than 2 axes (a lattice's frame); numpy stops at 64.
+MAX_ARRAY_DIMS = 8
+# An error reply's message: one line of at most this many characters (quoting at most
+# _PREVIEW_CHARS of any client value).
+MAX_ERROR_CHARS = 300
 MAX_LIVE_POINTS = 10_000  # a live scene's lattice (100 x 100)
 MAX_LOADS, MAX_PROBES = 64, 8  # per step
 # No message of the protocol nests deeper than 4 levels (a reply's describe fields); a bound well
@@ -192,11 +201,12 @@ class Request:
     probes: list[Any] | None = None  # step: maps {at, depth, radius}
     frame: bool = True  # step: whether the reply carries the frame
     initial: dict[str, Any] | None = None  # open: {displacement, velocity} arrays
+    token: str | None = None  # live ops: the Session object's own token (re-sends carry it)
 
     def to_wire(self) -> bytes:
         """The request's msgpack bytes; fields left at their defaults are not sent."""
         message: dict[str, Any] = {"v": PROTOCOL_VERSION, "id": self.id, "op": self.op}
-        for key in ("session", "scene", "t", "k", "loads", "probes", "initial"):
+        for key in ("session", "scene", "t", "k", "loads", "probes", "initial", "token"):
             value = getattr(self, key)
             if value is not None:
                 message[key] = value
@@ -275,6 +285,11 @@ class Request:
     def _read_live_fields(self, message: dict[str, Any]) -> None:
         if self.session is None:
             self._refuse(ErrorCode.BAD_REQUEST, f"{self.op} needs 'session' (the session's id)")
+        token = message.get("token")
+        if token is not None and not (type(token) is str and len(token) <= MAX_TOKEN_CHARS):
+            reason = f"'token' must be a string of at most {MAX_TOKEN_CHARS} characters"
+            self._refuse(ErrorCode.BAD_REQUEST, reason)
+        self.token = token
         if self.op == Op.OPEN and (initial := message.get("initial")) is not None:
             if type(initial) is not dict or not initial.keys() <= {"displacement", "velocity"}:
                 self._refuse(ErrorCode.BAD_REQUEST, "'initial' must map displacement/velocity")
@@ -311,8 +326,11 @@ def ok_reply(request_id: int | None, **fields: Any) -> dict[str, Any]:
 
 
 def error_reply(request_id: int | None, code: ErrorCode | str, message: str) -> dict[str, Any]:
-    """Build an error reply; ``message`` is flattened to one line."""
+    """Build an error reply; ``message`` is flattened to one line of at most
+    ``MAX_ERROR_CHARS`` characters."""
     text = " ".join(str(message).split()) or str(code)
+    if len(text) > MAX_ERROR_CHARS:
+        text = text[: MAX_ERROR_CHARS - 3] + "..."
     return {
         "v": PROTOCOL_VERSION,
         "id": request_id,
@@ -329,24 +347,35 @@ def pack_array(array: np.ndarray, dtype: str = "<f4") -> dict[str, Any]:
     return {"dtype": dtype, "shape": [int(n) for n in values.shape], "data": values.tobytes()}
 
 
-def unpack_array(obj: Any) -> np.ndarray:
+def unpack_array(obj: Any, max_dims: int = MAX_ARRAY_DIMS) -> np.ndarray:
     """Decode an array map; raises ProtocolError if it is malformed.
 
-    The result is a read-only view of the message's bytes (no copy).
+    The result is a read-only view of the message's bytes (no copy). Nothing of the client's
+    value is formatted whole: a dtype is quoted through ``preview``, a shape by its length.
     """
     if not isinstance(obj, dict):
         raise ProtocolError(f"an array must be a map, got {type(obj).__name__}")
     dtype, shape, data = obj.get("dtype"), obj.get("shape"), obj.get("data")
     if dtype not in ARRAY_DTYPES:
-        raise ProtocolError(f"array dtype must be one of {ARRAY_DTYPES}, got {dtype!r}")
+        raise ProtocolError(f"array dtype must be one of {ARRAY_DTYPES}, got {preview(dtype)}")
     if not isinstance(shape, list) or not all(_is_count(n) for n in shape):
-        raise ProtocolError(f"array shape must be a list of non-negative ints, got {shape!r}")
+        reason = f"array shape must be a list of non-negative ints, got {preview(shape)}"
+        raise ProtocolError(reason)
+    if len(shape) > max_dims:
+        raise ProtocolError(f"an array has at most {max_dims} axes, got {len(shape)}")
     if not isinstance(data, bytes):
         raise ProtocolError(f"array data must be bin, got {type(data).__name__}")
     itemsize = np.dtype(dtype).itemsize
-    expected = math.prod(shape) * itemsize
-    if len(data) != expected:
-        raise ProtocolError(f"array data is {len(data)} bytes; shape {shape} needs {expected}")
+    count = len(data) // itemsize
+    elements = 0 if 0 in shape else 1
+    for n in shape:  # stops once the product passes the data: never a huge integer
+        elements *= n
+        if elements > count:
+            break
+    if elements * itemsize != len(data):
+        raise ProtocolError(
+            f"array data is {len(data)} bytes, which does not fit its shape ({len(shape)} axes)"
+        )
     return np.frombuffer(data, dtype=np.dtype(dtype)).reshape(shape)
 
 

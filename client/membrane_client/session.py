@@ -9,11 +9,14 @@ with Client(address) as client, client.session("membrane-live") as session:
 
 Each Session has its own random id (the envelope's ``session``); one Client may hold several.
 A step carries the index ``k`` it expects to take, so a step the Lazy Pirate re-sends is
-answered from the server's stored reply, never applied twice.
+answered from the server's stored reply, never applied twice. Each Session object also sends
+its own random ``token`` on every live op: the server tells a re-send by the token, op and k,
+so two clients whose request ids coincide are never taken for one client re-sending.
 """
 
 from __future__ import annotations
 
+import secrets
 import uuid
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NamedTuple
@@ -97,6 +100,7 @@ class Session:
 
     Attributes:
         id: The session's id on the wire (random unless given, to join an open session).
+        token: This object's own random token (sent on every live op; re-sends carry it).
         k: Steps taken so far (the index of the next step).
         residuals: How far the initial shapes were from what the modes carry (relative).
     """
@@ -104,6 +108,7 @@ class Session:
     def __init__(self, client: Client, scene: str | None = None, session_id: str | None = None):
         self.client, self.scene = client, scene
         self.id = session_id or uuid.uuid4().hex
+        self.token = secrets.token_hex(16)
         self.k = 0
         self.residuals: dict[str, float] = {}
         self.info: SceneInfo | None = None
@@ -150,7 +155,9 @@ class Session:
         self.close()
 
     def _request(self, op: str, **fields: Any) -> dict[str, Any]:
-        return self.client.request(op, scene=self.scene, session=self.id, **fields)
+        return self.client.request(
+            op, scene=self.scene, session=self.id, token=self.token, **fields
+        )
 
 
 def _wire(item: Any) -> Any:

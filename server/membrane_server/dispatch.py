@@ -229,27 +229,27 @@ class Dispatcher:
         self._only = scenes[0] if len(scenes) == 1 else None
         # Live sessions outlive a Dispatcher: the server hands every one it makes the same table.
         self.sessions = sessions if sessions is not None else SessionTable()
-        live = LiveOps(self.sessions, self._scene)
-        self._ops: dict[str, Callable[[Request], dict[str, Any] | Prepared | bytes]] = {
-            Op.HELLO: self._hello,
-            Op.DESCRIBE: self._describe,
-            Op.QUERY: self._query,
-            Op.STATS: self._stats,
-            Op.PING: self._ping,
-            Op.OPEN: live.open,
-            Op.STEP: live.step,
-            Op.READ: live.read,
-            Op.RESET: live.reset,
-            Op.CLOSE: live.close,
-        }
+        # Nothing here refers back to the dispatcher (no bound methods kept, the live ops find
+        # scenes through a plain function): a reload's old dispatcher and scenes are freed by
+        # reference counting as soon as no session holds them, not at a full collection.
+        self._live = LiveOps(self.sessions, functools.partial(find_scene, self.scenes, self._only))
+
+    @property
+    def ops(self) -> list[str]:
+        """The ops this server answers."""
+        return [*_OPS, *_LIVE_OPS]
 
     @property
     def default_scene(self) -> str | None:
         """The scene requests get when they name none (None when several are hosted)."""
         return next(iter(self.scenes)) if len(self.scenes) == 1 else None
 
-    def handle(self, body: Sequence[bytes]) -> Answer:
+    def handle(self, body: Sequence[bytes], peer: str = "") -> Answer:
         """Answer one request given as its payload frames (exactly one is valid). Never raises.
+
+        ``peer`` names who sent it, for the per-peer session bounds and the sessions' owners:
+        ``"key:<z85 public key>"`` with CurveZMQ, ``"conn:<routing id hex>"`` without (the
+        server's loop says which); "" in process.
 
         Nothing from a request is recorded (session, op) unless its envelope is valid, and no
         value a client sent is formatted whole into a reply or a log line (``preview``): the
@@ -265,7 +265,12 @@ class Dispatcher:
             op, session = (None, None) if envelope is None else (envelope.op, envelope.session)
             return self._error(exc.request_id, exc.code, str(exc), op, session)
         try:
-            fields = self._ops[request.op](request)
+            if request.op in _LIVE_OPS:
+                fields: dict[str, Any] | Prepared | bytes = _LIVE_OPS[request.op](
+                    self._live, request, peer
+                )
+            else:
+                fields = _OPS[request.op](self, request)
             if isinstance(fields, Prepared):
                 reply = encode_ok_reply(request.id, fields.fields, **fields.extra)
                 return Answer(reply, request.op, None, fields.scene, request.session)
@@ -281,22 +286,7 @@ class Dispatcher:
         return Answer(reply, request.op, None, None, request.session)
 
     def _scene(self, request: Request) -> ServedScene:
-        name = request.scene
-        if name is None:
-            if self._only is not None:  # the common case first: one scene, none named
-                return self._only
-            hosted = ", ".join(self.scenes)
-            raise RequestError(
-                ErrorCode.UNKNOWN_SCENE,
-                f"this server hosts several scenes ({hosted}): name one in 'scene'",
-            )
-        served = self.scenes.get(name)
-        if served is None:
-            hosted = ", ".join(self.scenes)
-            raise RequestError(
-                ErrorCode.UNKNOWN_SCENE, f"no scene {preview(name)} here; scenes: {hosted}"
-            )
-        return served
+        return find_scene(self.scenes, self._only, request)
 
     def _error(
         self,
@@ -315,7 +305,7 @@ class Dispatcher:
         return {
             "protocol": PROTOCOL_VERSION,
             "server": server_version(),
-            "ops": list(self._ops),
+            "ops": self.ops,
             "scenes": list(self.scenes),
             "default_scene": self.default_scene,
             "session": request.session,
@@ -343,3 +333,45 @@ class Dispatcher:
 
     def _ping(self, request: Request) -> dict[str, Any]:
         return {"pong": True, "time": time.time()}
+
+
+def find_scene(
+    scenes: dict[str, ServedScene], only: ServedScene | None, request: Request
+) -> ServedScene:
+    """The served scene a request names (the one hosted when it names none)."""
+    name = request.scene
+    if name is None:
+        if only is not None:  # the common case first: one scene, none named
+            return only
+        hosted = ", ".join(scenes)
+        raise RequestError(
+            ErrorCode.UNKNOWN_SCENE,
+            f"this server hosts several scenes ({hosted}): name one in 'scene'",
+        )
+    served = scenes.get(name)
+    if served is None:
+        hosted = ", ".join(scenes)
+        raise RequestError(
+            ErrorCode.UNKNOWN_SCENE, f"no scene {preview(name)} here; scenes: {hosted}"
+        )
+    return served
+
+
+_Handler = Callable[[Dispatcher, Request], "dict[str, Any] | Prepared | bytes"]
+_LiveHandler = Callable[[LiveOps, Request, str], bytes]
+# Plain functions, not bound methods: a table of a dispatcher's own bound methods would be a
+# reference cycle that keeps a reloaded dispatcher (and its scenes) until a full collection.
+_OPS: dict[str, _Handler] = {
+    Op.HELLO: Dispatcher._hello,
+    Op.DESCRIBE: Dispatcher._describe,
+    Op.QUERY: Dispatcher._query,
+    Op.STATS: Dispatcher._stats,
+    Op.PING: Dispatcher._ping,
+}
+_LIVE_OPS: dict[str, _LiveHandler] = {
+    Op.OPEN: LiveOps.open,
+    Op.STEP: LiveOps.step,
+    Op.READ: LiveOps.read,
+    Op.RESET: LiveOps.reset,
+    Op.CLOSE: LiveOps.close,
+}

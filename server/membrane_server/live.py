@@ -2,10 +2,17 @@
 that bounds them (how many, how long idle).
 
 A session is keyed by the envelope's ``session`` id and bound to the scene (and engine) it
-opened on: a reload leaves it on that engine until it closes. A step names the index ``k`` it
-takes: the session's own count applies it; the previous index with the same request id is a
-Lazy Pirate re-send and gets the stored reply; anything else is refused with the session's k.
-The ops themselves are the dispatcher's (``dispatch.Dispatcher``); this module holds the state.
+opened on: a reload leaves it on that engine until it closes. With CurveZMQ it is also bound to
+its opener's public key: another key is told there is no such session. Without keys a session
+id is a bearer token (docs/PROTOCOL.md says so).
+
+A step names the index ``k`` it takes: the session's own count applies it. A re-send (a Lazy
+Pirate retry after a lost reply) is recognised by the ``Session`` object's own random
+``token``, the op and k (and the scene, for ``open``), never by the request id alone: two
+clients number their requests alike. Anything else is refused with the session's k.
+
+Fairness: each peer (a connection without CurveZMQ, a key with it) holds at most
+``max_per_peer`` sessions, within the global ``max_sessions``.
 """
 
 from __future__ import annotations
@@ -15,7 +22,7 @@ import time
 from collections import Counter, OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -47,6 +54,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DEFAULT_IDLE_S",
+    "DEFAULT_MAX_PER_PEER",
     "DEFAULT_MAX_SESSIONS",
     "LiveOps",
     "LiveSession",
@@ -57,7 +65,12 @@ __all__ = [
 ]
 
 DEFAULT_MAX_SESSIONS = 64
+DEFAULT_MAX_PER_PEER = 16
 DEFAULT_IDLE_S = 300.0
+# Python objects around a session (its record, the table's entry, stored replies' headers).
+_SESSION_OVERHEAD = 4096
+# A live reply beside its frame: the envelope and up to MAX_PROBES readings.
+_REPLY_OVERHEAD = 512 + MAX_PROBES * 160
 
 
 def build_engine(scene: Scene, problem: Any) -> ModalEngine:
@@ -75,16 +88,13 @@ def build_engine(scene: Scene, problem: Any) -> ModalEngine:
 
 
 def live_description(engine: ModalEngine) -> dict[str, Any]:
-    """``describe``'s ``live`` field: the engine's settings, the per-step limits, the memory a
-    session holds, and the units of what a step carries."""
-    modes = math.prod(engine.modes.box)
-    frame = math.prod(engine.lattice_shape)
+    """``describe``'s ``live`` field: the engine's settings and bounds (its own ``describe``),
+    the per-step limits, the memory a session holds at most, and the units of a step."""
     return {
         **engine.describe(),
         "max_loads": MAX_LOADS,
         "max_probes": MAX_PROBES,
-        # q, v and the held load force per mode, the initial state, and the last reply's frame.
-        "session_bytes": 5 * modes * 8 + frame * 4 + 4096,
+        "session_bytes": session_bytes(engine),
         "units": {
             "at": "problem units (lattice coordinates)",
             "force": "total force, problem units; a load's > 0 pushes along +axis",
@@ -92,6 +102,14 @@ def live_description(engine: ModalEngine) -> dict[str, Any]:
             "k": "steps taken; t = k * dt",
         },
     }
+
+
+def session_bytes(engine: ModalEngine) -> int:
+    """The most one session holds: its start and current states (the current one with the
+    applied footprints, within the step budget), its stored open and step replies."""
+    frame = 4 * math.prod(engine.lattice_shape)
+    start = 3 * 8 * math.prod(engine.modes.box)
+    return engine.state_bytes + start + 2 * _REPLY_OVERHEAD + frame + _SESSION_OVERHEAD
 
 
 def reading_fields(reading: ProbeReading) -> dict[str, Any]:
@@ -105,15 +123,32 @@ def reading_fields(reading: ProbeReading) -> dict[str, Any]:
     }
 
 
+class Sent(NamedTuple):
+    """What identifies a request among re-sends, and the reply it got."""
+
+    token: str | None
+    request_id: int
+    reply: bytes
+
+    def resent_by(self, request: Request) -> bool:
+        """Whether ``request`` re-sends this one: the same Session token (and, without a token,
+        the same request id: all a client without tokens can be told apart by)."""
+        if request.token is not None or self.token is not None:
+            return request.token == self.token
+        return request.id == self.request_id
+
+
 @dataclass
 class LiveSession:
-    """One open session: the scene it opened on, its start, its state and its last replies."""
+    """One open session: the scene it opened on, its owner, its start, its state and its last
+    replies."""
 
     served: ServedScene
     start: Start[ModalState]
     state: ModalState
-    opened: tuple[int, bytes]  # the open's request id and reply (a re-sent open gets it again)
-    last_step: tuple[int, bytes] | None = None  # the latest step's request id and reply
+    opened: Sent  # the open (a re-sent open gets its reply again)
+    owner: str = ""  # the peer that opened it ("key:..." binds it to that CurveZMQ key)
+    last_step: Sent | None = None  # the latest step
     readings: tuple[ProbeReading, ...] = ()
     last_used: float = field(default=0.0)
 
@@ -128,6 +163,10 @@ class LiveSession:
         assert engine is not None  # a session opens on live scenes only
         return engine
 
+    def visible_to(self, peer: str) -> bool:
+        """A key-bound session is its key's alone; without keys the id is the credential."""
+        return not self.owner.startswith("key:") or peer == self.owner
+
     def apply(self, result: StepResult[ModalState]) -> None:
         self.state, self.readings = result.state, result.probes
 
@@ -136,7 +175,8 @@ class LiveSession:
 
 
 class SessionTable:
-    """The open sessions: at most ``max_sessions``, each expiring after ``idle_s`` unused.
+    """The open sessions: at most ``max_sessions`` in all and ``max_per_peer`` per peer, each
+    expiring after ``idle_s`` unused.
 
     Kept by the server across reloads (each Dispatcher gets the same table).
     """
@@ -146,38 +186,49 @@ class SessionTable:
         max_sessions: int = DEFAULT_MAX_SESSIONS,
         idle_s: float = DEFAULT_IDLE_S,
         clock: Callable[[], float] = time.monotonic,
+        max_per_peer: int = DEFAULT_MAX_PER_PEER,
     ) -> None:
-        if max_sessions < 1 or not idle_s > 0:
-            raise ValueError("max_sessions must be >= 1 and idle_s > 0")
+        if max_sessions < 1 or max_per_peer < 1 or not idle_s > 0:
+            raise ValueError("max_sessions and max_per_peer must be >= 1 and idle_s > 0")
         self.max_sessions, self.idle_s, self._clock = max_sessions, idle_s, clock
+        self.max_per_peer = max_per_peer
         self._sessions: OrderedDict[str, LiveSession] = OrderedDict()  # least recently used first
+        self._per_peer: Counter[str] = Counter()
         self.counts: Counter[str] = Counter()
 
     def __len__(self) -> int:
         return len(self._sessions)
 
-    def get(self, session_id: str) -> LiveSession | None:
-        """The open session with this id (None if none, or expired), marked used now."""
+    def get(self, session_id: str, peer: str = "") -> LiveSession | None:
+        """The open session with this id that ``peer`` may use (None if none, or expired),
+        marked used now."""
         self._expire()
         session = self._sessions.get(session_id)
-        if session is not None:
-            session.last_used = self._clock()
-            self._sessions.move_to_end(session_id)
+        if session is None or not session.visible_to(peer):
+            return None
+        session.last_used = self._clock()
+        self._sessions.move_to_end(session_id)
         return session
 
-    def require(self, session_id: str) -> LiveSession:
+    def require(self, session_id: str, peer: str = "") -> LiveSession:
         """``get``, or the ``unknown_session`` refusal."""
-        session = self.get(session_id)
+        session = self.get(session_id, peer)
         if session is None:
             raise RequestError(
                 ErrorCode.UNKNOWN_SESSION,
-                f"no open session {session_id[:64]!r} (never opened, closed, or idle for more "
-                f"than {self.idle_s:g} s): open one",
+                f"no open session {preview(session_id)} (never opened, closed, opened with "
+                f"another key, or idle for more than {self.idle_s:g} s): open one",
             )
         return session
 
+    def taken(self, session_id: str) -> bool:
+        """Whether any session, visible to the asker or not, has this id."""
+        self._expire()
+        return session_id in self._sessions
+
     def add(self, session_id: str, session: LiveSession) -> None:
-        """Register a new session (raises ``too_many_sessions`` when full)."""
+        """Register a new session (raises ``too_many_sessions`` when the table or the peer's
+        share of it is full)."""
         self._expire()
         if len(self._sessions) >= self.max_sessions:
             self.counts["refused"] += 1
@@ -186,15 +237,39 @@ class SessionTable:
                 f"{len(self._sessions)} live sessions are open, the limit: close one, or wait "
                 f"for an idle one to expire ({self.idle_s:g} s)",
             )
+        if self._per_peer[session.owner] >= self.max_per_peer:
+            self.counts["refused"] += 1
+            raise RequestError(
+                ErrorCode.TOO_MANY_SESSIONS,
+                f"this peer holds {self.max_per_peer} live sessions, the most one peer may "
+                "(a connection, or a CurveZMQ key): close one",
+            )
         session.last_used = self._clock()
         self._sessions[session_id] = session
+        self._per_peer[session.owner] += 1
         self.counts["opened"] += 1
 
-    def close(self, session_id: str) -> bool:
-        """Forget a session; True when it was open."""
-        closed = self._sessions.pop(session_id, None) is not None
-        self.counts["closed"] += closed
-        return closed
+    def close(self, session_id: str, peer: str = "") -> bool:
+        """Forget a session ``peer`` may use; True when it was open."""
+        session = self._sessions.get(session_id)
+        if session is None or not session.visible_to(peer):
+            return False
+        self._remove(session_id)
+        self.counts["closed"] += 1
+        return True
+
+    def close_revision(self, revision: str) -> int:
+        """Close every session opened on a scene of this revision (a reload's old scenes past
+        the bound on revisions held); returns how many."""
+        doomed = [sid for sid, s in self._sessions.items() if s.served.revision == revision]
+        for session_id in doomed:
+            self._remove(session_id)
+        self.counts["closed"] += len(doomed)
+        return len(doomed)
+
+    def revisions(self) -> set[str]:
+        """The scene revisions the open sessions hold."""
+        return {session.served.revision for session in self._sessions.values()}
 
     def snapshot(self) -> dict[str, Any]:
         """The ``stats`` reply's ``live`` figures."""
@@ -202,17 +277,24 @@ class SessionTable:
         return {
             "open": len(self._sessions),
             "max_sessions": self.max_sessions,
+            "max_per_peer": self.max_per_peer,
             "idle_s": self.idle_s,
             **{name: self.counts[name] for name in _COUNTS},
         }
 
+    def _remove(self, session_id: str) -> None:
+        session = self._sessions.pop(session_id)
+        self._per_peer[session.owner] -= 1
+        if self._per_peer[session.owner] <= 0:
+            del self._per_peer[session.owner]
+
     def _expire(self) -> None:
         deadline = self._clock() - self.idle_s
         while self._sessions:
-            oldest = next(iter(self._sessions.values()))
+            session_id, oldest = next(iter(self._sessions.items()))
             if oldest.last_used > deadline:
                 return
-            self._sessions.popitem(last=False)
+            self._remove(session_id)
             self.counts["expired"] += 1
 
 
@@ -225,22 +307,26 @@ class LiveOps:
 
     Args:
         table: The open sessions.
-        scene_of: The served scene a request names (the dispatcher's rule, raising its refusals).
+        scene_of: The served scene a request names (the dispatcher's rule, raising its
+            refusals); a plain function, so that nothing here refers back to a dispatcher.
     """
 
     def __init__(self, table: SessionTable, scene_of: Callable[[Request], ServedScene]) -> None:
         self.table, self._scene_of = table, scene_of
 
-    def open(self, request: Request) -> bytes:
+    def open(self, request: Request, peer: str = "") -> bytes:
         session_id = _session_id(request)
         served = self._scene_of(request)
         if served.live is None:
             raise RequestError(ErrorCode.NOT_LIVE, f"scene {served.name} is a film, not live")
-        existing = self.table.get(session_id)
+        existing = self.table.get(session_id, peer)
         if existing is not None:
-            if existing.opened[0] == request.id:  # a re-sent open: the same reply
-                return existing.opened[1]
+            same_scene = existing.served.name == served.name
+            if same_scene and existing.opened.resent_by(request):  # a re-sent open
+                return existing.opened.reply
             raise RequestError(ErrorCode.SESSION_EXISTS, "this session id is open: close it first")
+        if self.table.taken(session_id):  # another key's: say no more than that it is taken
+            raise RequestError(ErrorCode.SESSION_EXISTS, "this session id is taken: pick another")
         start = _start(served.live, request.initial)
         fields = {
             "session": session_id,
@@ -253,21 +339,23 @@ class LiveOps:
             },
         }
         reply = encode(ok_reply(request.id, **fields))
-        self.table.add(session_id, LiveSession(served, start, start.state, (request.id, reply)))
+        opened = Sent(request.token, request.id, reply)
+        self.table.add(session_id, LiveSession(served, start, start.state, opened, peer))
         return reply
 
-    def step(self, request: Request) -> bytes:
-        session = self._session(request)
+    def step(self, request: Request, peer: str = "") -> bytes:
+        session = self._session(request, peer)
         k = request.k
         if k != session.k:
-            if k == session.k - 1 and session.last_step and session.last_step[0] == request.id:
+            last = session.last_step
+            if k == session.k - 1 and last is not None and last.resent_by(request):
                 self.table.counts["resent"] += 1
-                return session.last_step[1]  # a Lazy Pirate re-send: never applied twice
+                return last.reply  # a Lazy Pirate re-send: never applied twice
             self.table.counts["mismatches"] += 1
             raise RequestError(
                 ErrorCode.STEP_MISMATCH,
                 f"the session has taken {session.k} steps: the next step is k = {session.k}, "
-                f"this one asked for k = {k}",
+                f"this one asked for k = {preview(k)}",
             )
         try:
             result = session.engine.step(
@@ -279,25 +367,28 @@ class LiveOps:
         self.table.counts["steps"] += 1
         fields = self._frame_fields(request, session, result.frame)
         reply = encode(ok_reply(request.id, **fields))
-        session.last_step = (request.id, reply)
+        session.last_step = Sent(request.token, request.id, reply)
         return reply
 
-    def read(self, request: Request) -> bytes:
-        session = self._session(request)
+    def read(self, request: Request, peer: str = "") -> bytes:
+        session = self._session(request, peer)
         frame = session.engine.frame(session.state)
-        return encode(ok_reply(request.id, **self._frame_fields(request, session, frame)))
+        fields = self._frame_fields(request, session, frame)
+        if session.last_step is not None and session.last_step.token is not None:
+            fields["token"] = session.last_step.token  # whose step this state follows
+        return encode(ok_reply(request.id, **fields))
 
-    def reset(self, request: Request) -> bytes:
-        session = self._session(request)
+    def reset(self, request: Request, peer: str = "") -> bytes:
+        session = self._session(request, peer)
         session.reset()
         return encode(ok_reply(request.id, session=request.session, k=0, t=0.0))
 
-    def close(self, request: Request) -> bytes:
-        closed = self.table.close(_session_id(request))
+    def close(self, request: Request, peer: str = "") -> bytes:
+        closed = self.table.close(_session_id(request), peer)
         return encode(ok_reply(request.id, session=request.session, closed=closed))
 
-    def _session(self, request: Request) -> LiveSession:
-        session = self.table.require(_session_id(request))
+    def _session(self, request: Request, peer: str) -> LiveSession:
+        session = self.table.require(_session_id(request), peer)
         if request.scene is not None and request.scene != session.served.name:
             reason = f"this session is on scene {session.served.name}, not {preview(request.scene)}"
             raise RequestError(ErrorCode.BAD_REQUEST, reason)

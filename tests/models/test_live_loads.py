@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 from scipy.integrate import quad
 
 from membrane_models.live import InvalidLoad, Load, ModalEngine, ModalState
+from membrane_models.live.cost import StepTooCostly
 from membrane_models.live.inputs import MAX_LOADS
 from membrane_models.problems import make_problem
 from membrane_models.spectrum import gaussian_sine_integrals
@@ -143,6 +144,12 @@ BAD_LOADS: list[tuple[Any, str]] = [
     ({"at": [0.5, 0.5], "force": 1.0, "radius": 0.05, "extra": 1}, "keys"),
     ([0.5, 0.5, 1.0], "map"),
     (Load((0.5, 0.5), math.nan, 0.05), "finite"),
+    ({"at": [0.5, 0.5], "force": 1e308, "radius": 0.05}, "at most 1e"),
+    ({"at": [0.5, 0.5], "force": 2**63, "radius": 0.05}, "at most 1e"),
+    (Load((0.5, 0.5), -1e7, 0.05), "at most 1e"),
+    ({"at": [0.5, 0.5], "force": 1.0, "radius": 1e-310}, "smallest"),
+    ({"at": [0.5, 0.5], "force": 1.0, "radius": 5e-324}, "smallest"),
+    ({"at": [0.5, 0.5], "force": 1.0, "radius": 1e9}, "at most 10"),
 ]
 
 
@@ -172,7 +179,7 @@ def test_too_many_loads_and_a_string_radius_below_the_smallest() -> None:
     with pytest.raises(InvalidLoad, match="list"):
         engine.step(state, {"at": [0.5, 0.5], "force": 1.0, "radius": 0.05})  # type: ignore[arg-type]
     string = ModalEngine(STRING, 100, 0.01)
-    with pytest.raises(InvalidLoad, match="use 0 for a point force"):
+    with pytest.raises(InvalidLoad, match="0 is a point force"):
         string.step(string.start().state, [Load((0.5,), 1.0, 1e-6)])
     assert string.min_radius == pytest.approx(4.0 / 2**18, rel=1e-6)
 
@@ -184,3 +191,21 @@ def test_loads_accept_scalar_at_on_the_string_and_numpy_numbers() -> None:
     b = engine.step(state, [Load((0.4,), 0.2, 0.0)]).frame
     assert a is not None and b is not None
     np.testing.assert_array_equal(a, b)
+
+
+def test_a_step_over_the_cost_budget_is_refused_with_its_figure() -> None:
+    """64 loads at the smallest radius cost about 0.35 s of frame each time before the budget;
+    now the step is priced first and refused, the state untouched, and a cheaper step passes."""
+    engine = ModalEngine(MEMBRANE, 20, 0.001, damping=0.02)
+    state = engine.start().state
+    tiny = [Load((0.3 + 0.005 * i, 0.5), 1.0, engine.min_radius) for i in range(MAX_LOADS)]
+    with pytest.raises(StepTooCostly, match=r"about [0-9.]+ ms of work, over the 5 ms"):
+        engine.step(state, tiny)
+    half = Load((0.5, 0.5), 1.0, 2 * engine.min_radius)
+    assert engine.step(state, [half]).state.step == 1  # one at twice the radius is within it
+    wide = [Load((0.3 + 0.005 * i, 0.5), 1.0, 0.05) for i in range(MAX_LOADS)]
+    assert engine.step(state, wide).state.step == 1  # today's typical loads stay legal
+    string = ModalEngine(STRING, 100, 0.001)
+    held = [Load((0.2 + 0.01 * i,), 1.0, 4 * string.min_radius) for i in range(2)]
+    with pytest.raises(StepTooCostly, match="bytes of spectra"):
+        string.step(string.start().state, held)

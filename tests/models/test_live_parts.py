@@ -52,7 +52,7 @@ def test_synthesis_folds_modes_beyond_the_lattice_exactly(monkeypatch: pytest.Mo
         coefficients,
     ).reshape(-1)
     dense = LatticeSynthesis(shape).frame(coefficients)
-    monkeypatch.setattr(synthesis_module, "_DENSE_TABLE_ELEMENTS", 10)
+    monkeypatch.setattr(synthesis_module, "DENSE_TABLE_ELEMENTS", 10)
     folded = LatticeSynthesis(shape).frame(coefficients)
     np.testing.assert_allclose(dense, direct, atol=1e-12)
     np.testing.assert_allclose(folded, direct, atol=1e-12)
@@ -103,7 +103,8 @@ def test_contact_with_a_singular_compliance() -> None:
 
 def test_residual_cross_compliance_is_symmetric() -> None:
     engine = ModalEngine(make_problem("membrane-forced"), 20, 0.01)
-    a = engine._footprint(Probe((0.3, 0.6), 0.0, 0.05), "probe", 0)
-    b = engine._footprint(Probe((0.05, 0.5), 0.0, 0.12), "probe", 1)
+    pa, pb = Probe((0.3, 0.6), 0.0, 0.05), Probe((0.05, 0.5), 0.0, 0.12)
+    a = engine._footprint(pa, engine._size(pa, "probe", 0), "probe")
+    b = engine._footprint(pb, engine._size(pb, "probe", 1), "probe")
     assert engine.residual.cross(a, b) == pytest.approx(engine.residual.cross(b, a), rel=1e-12)
     assert engine.residual.cross(a, a) > 0.0

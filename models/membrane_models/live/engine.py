@@ -27,13 +27,14 @@ Contact forces are held over the step under either hold: they are this step's un
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from membrane_models.live.contact import single_contact, solve_contact
+from membrane_models.live.cost import FootprintSize, StepBudget, step_cost
 from membrane_models.live.errors import (
     InvalidEngineSettings,
     InvalidLoad,
@@ -42,6 +43,7 @@ from membrane_models.live.errors import (
     LiveError,
 )
 from membrane_models.live.footprint import (
+    CACHE_BYTES,
     EDGE_CAP,
     EDGE_FREE,
     Footprint,
@@ -49,7 +51,16 @@ from membrane_models.live.footprint import (
     gaussian_reach,
     make_footprint,
 )
-from membrane_models.live.inputs import inside_domain, parse_loads, parse_probes
+from membrane_models.live.inputs import (
+    MAX_DEPTH,
+    MAX_FORCE,
+    MAX_LOADS,
+    MAX_PROBES,
+    MAX_RADIUS,
+    inside_domain,
+    parse_loads,
+    parse_probes,
+)
 from membrane_models.live.interface import (
     Hold,
     Load,
@@ -61,9 +72,9 @@ from membrane_models.live.interface import (
     StepResult,
 )
 from membrane_models.live.modes import ModeSet, choose_modes
-from membrane_models.live.projection import project
+from membrane_models.live.projection import MAX_SHAPE_VALUE, project
 from membrane_models.live.static_correction import ResidualFlexibility
-from membrane_models.live.synthesis import LatticeSynthesis
+from membrane_models.live.synthesis import DENSE_TABLE_ELEMENTS, LatticeSynthesis
 from membrane_models.live.transition import Transition, transition
 from membrane_models.problems import Problem
 
@@ -72,6 +83,10 @@ __all__ = ["DEFAULT_MAX_REACH", "MAX_LATTICE_POINTS", "ModalEngine", "ModalState
 FloatArray = NDArray[np.float64]
 
 MAX_LATTICE_POINTS = 2**22
+# Python objects around a state's arrays (the dataclass, tuples, array headers), and around each
+# applied footprint (its dataclass, tuples, array headers): tracemalloc's figures, rounded up.
+_STATE_OVERHEAD = 2048
+_FOOTPRINT_OVERHEAD = 768
 # Most modes per axis the static correction sums (the membrane's W table: 8 MiB; the string's:
 # 2 MiB). They set the smallest footprint radius the correction carries: 4 / reach.
 DEFAULT_MAX_REACH = {1: 2**18, 2: 2**10}
@@ -116,6 +131,8 @@ class ModalEngine:
         static_correction: add the static response of the modes not stepped.
         max_reach: most modes per axis the static correction sums (default
             ``DEFAULT_MAX_REACH``); the smallest radius it carries is 4 / max_reach.
+        budget: the most one step may cost (``cost.StepBudget``; default 5 ms of work and
+            512 KiB of held spectra); a step over it is refused with its figure.
 
     Raises:
         InvalidEngineSettings: a setting out of range.
@@ -133,6 +150,7 @@ class ModalEngine:
         step_limit: float | None = math.pi,
         static_correction: bool = True,
         max_reach: int | None = None,
+        budget: StepBudget | None = None,
     ) -> None:
         dims = problem.spatial_dims
         if dims not in (1, 2):
@@ -158,6 +176,7 @@ class ModalEngine:
         )
         self.residual = ResidualFlexibility(self._c, self.modes, reach, static_correction)
         self.synthesis = LatticeSynthesis(self._lattice)
+        self.budget = budget if budget is not None else StepBudget()
         self._scale = 0.5**dims
         self._owner = object()
         self._zeros = np.zeros(self.modes.box)
@@ -225,10 +244,18 @@ class ModalEngine:
         self._check(state)
         checked_loads = parse_loads(loads, self._dims) if loads else ()
         checked_probes = parse_probes(probes, self._dims) if probes else ()
-        load_prints = [self._footprint(ld, "load", i) for i, ld in enumerate(checked_loads)]
-        probe_prints = [
-            self._footprint(pr, "probe", i) if inside_domain(pr.at) else None
+        load_sizes = [self._size(ld, "load", i) for i, ld in enumerate(checked_loads)]
+        probe_sizes = [
+            self._size(pr, "probe", i) if inside_domain(pr.at) else None
             for i, pr in enumerate(checked_probes)
+        ]
+        inside = [size for size in probe_sizes if size is not None]
+        self.budget.check(step_cost(load_sizes, inside, self._lattice, self.residual.enabled))
+        pairs = zip(checked_loads, load_sizes, strict=True)
+        load_prints = [self._footprint(ld, size, "load") for ld, size in pairs]
+        probe_prints = [
+            None if size is None else self._footprint(pr, size, "probe")
+            for pr, size in zip(checked_probes, probe_sizes, strict=True)
         ]
         load_forces = [ld.force for ld in checked_loads]
         tr, q0, v0 = self.transition, state.q, state.v
@@ -252,6 +279,7 @@ class ModalEngine:
         for fp, reading in zip(probe_prints, readings, strict=True):
             if fp is not None and reading.force > 0.0:
                 applied.append((fp, -reading.force))
+        _require_finite(q, v, readings)
         q.flags.writeable = v.flags.writeable = p1.flags.writeable = False
         index = state.step + 1
         new = ModalState(index, index * self._dt, q, v, p1, tuple(applied), self._owner)
@@ -275,13 +303,16 @@ class ModalEngine:
         self._check(state)
         coefficients = state.q
         extra = []
+        spread = []
         for footprint, force in state.applied:
             if force == 0.0 or not self.residual.enabled:
                 continue
             if footprint.is_point:
                 extra.append(self.residual.point_field(footprint.at[0], force, self.synthesis))
             else:
-                coefficients = _add(coefficients, self.residual.coefficients(footprint, force))
+                spread.append((footprint, force))
+        if spread:  # one combined box, however many footprints: the cost model's frame term
+            coefficients = _add(coefficients, self.residual.combined(spread))
         values = self.synthesis.frame(coefficients)
         for field_values in extra:
             values = values + field_values
@@ -307,45 +338,82 @@ class ModalEngine:
             "max_reach": self.max_reach,
             "min_radius": self.min_radius,
             "memory_bytes": self.memory_bytes,
+            "max_step_work": self.budget.max_work,
+            "max_held_bytes": self.budget.max_held_bytes,
+            "max_force": MAX_FORCE,
+            "max_depth": MAX_DEPTH,
+            "max_radius": MAX_RADIUS,
+            "max_shape_value": MAX_SHAPE_VALUE,
+            "engine_bytes": self.engine_bytes,
+            "state_bytes": self.state_bytes,
         }
+
+    @property
+    def engine_bytes(self) -> int:
+        """The most this engine and the footprint caches it shares hold, whatever sessions send:
+        its coefficients, the residual weights and the sine tables at their largest."""
+        arrays = [getattr(self.transition, name) for name in self.transition.__dataclass_fields__]
+        held = sum(int(a.nbytes) for a in arrays) + int(self.modes.omega.nbytes)
+        weights = 8 * self.max_reach**self._dims if self.residual.enabled else self.residual.nbytes
+        tables = sum(2 * 8 * DENSE_TABLE_ELEMENTS for _ in self._lattice)
+        return held + weights + tables + CACHE_BYTES
+
+    @property
+    def state_bytes(self) -> int:
+        """The most one state holds: q, v and the held load force on the mode box, and the
+        applied footprints' spectra within the budget (with their objects)."""
+        arrays = 3 * 8 * math.prod(self.modes.box)
+        footprints = (MAX_LOADS + MAX_PROBES) * _FOOTPRINT_OVERHEAD
+        return arrays + self.budget.max_held_bytes + footprints + _STATE_OVERHEAD
 
     # -- the parts of a step ----------------------------------------------------------------
 
-    def _footprint(self, item: Load | Probe, kind: str, index: int) -> Footprint:
-        """The footprint of a load or probe, its spectra long enough for the correction.
+    def _size(self, item: Load | Probe, kind: str, index: int) -> FootprintSize:
+        """The spectrum entries a footprint needs per axis (long enough for the static
+        correction), from its centre and radius alone: what the cost model prices.
+
+        Raises:
+            InvalidLoad, InvalidProbe: a radius below ``min_radius`` (or 0 on a membrane).
+        """
+        radius = item.radius
+        if radius == 0.0:
+            self._check_point(item, kind, index)
+            return FootprintSize(self.modes.box, (0,) * self._dims)
+        near = EDGE_FREE * radius
+        edges = tuple(int(a < near) + int(1.0 - a < near) for a in item.at)
+        if not self.residual.enabled:
+            return FootprintSize(self.modes.box, edges)
+        if radius < self.min_radius:  # before 4 / r, which overflows for subnormal radii
+            raise self._too_small(item, kind, index)
+        reach = gaussian_reach(radius)
+        counts = tuple(
+            max(k, reach, self._edge_reach(a, radius) if edge else 0)
+            for k, a, edge in zip(self.modes.box, item.at, edges, strict=True)
+        )
+        return FootprintSize(counts, edges)
+
+    def _footprint(self, item: Load | Probe, size: FootprintSize, kind: str) -> Footprint:
+        """The footprint of a load or probe, with ``size``'s spectrum entries per axis.
 
         Loads' spectra are cached (a load is usually held in place), probes' are not (they
         move every step, and the sines cost less than the bookkeeping).
         """
-        radius = item.radius
-        if radius == 0.0:
-            return self._point(item, kind, index)
-        counts = self.modes.box
-        if self.residual.enabled:
-            reach = gaussian_reach(radius)
-            if reach > self.max_reach:
-                raise self._too_small(item, kind, index)
-            near = EDGE_FREE * radius
-            counts = tuple(
-                max(k, reach, 0 if near <= a <= 1.0 - near else self._edge_reach(a, radius))
-                for k, a in zip(counts, item.at, strict=True)
-            )
-        return make_footprint(item.at, radius, counts, cache=kind == "load")
+        if item.radius == 0.0:
+            return self._point(item)
+        return make_footprint(item.at, item.radius, size.counts, cache=kind == "load")
 
     def _too_small(self, item: Load | Probe, kind: str, index: int) -> LiveError:
         error = InvalidLoad if isinstance(item, Load) else InvalidProbe
         return error(
             f"{kind} {index}: radius {item.radius:.6g} is below {self.min_radius:.3g}, the "
-            f"smallest the static correction carries ({self.max_reach} modes per axis): a "
-            "footprint's compliance grows like log(1 / r) on a membrane and needs modes up "
-            f"to 4 / r{'; use 0 for a point force' if self._dims == 1 else ''}"
+            f"smallest the static correction carries (modes up to 4 / r, at most "
+            f"{self.max_reach} per axis){'; 0 is a point force' if self._dims == 1 else ''}"
         )
 
     def _edge_reach(self, centre: float, radius: float) -> int:
         return min(self._edge_cap, edge_reach(centre, radius))
 
-    def _point(self, item: Load | Probe, kind: str, index: int) -> Footprint:
-        """A point force (string only); on a clamped end it touches nothing."""
+    def _check_point(self, item: Load | Probe, kind: str, index: int) -> None:
         if self._dims == 2:
             error = InvalidLoad if isinstance(item, Load) else InvalidProbe
             raise error(
@@ -353,6 +421,9 @@ class ModalEngine:
                 "logarithmically singular there (infinite under the point); give the tool's "
                 "radius (> 0; the study's forcing is 0.05)"
             )
+
+    def _point(self, item: Load | Probe) -> Footprint:
+        """A point force (string only); on a clamped end it touches nothing."""
         if item.at[0] in (0.0, 1.0):
             zero = np.zeros(self.modes.box[0])
             zero.setflags(write=False)
@@ -388,17 +459,16 @@ class ModalEngine:
         if not footprints:
             return tuple(_outside() for _ in probes), []
         tr, cross, scale = self.transition, self.residual.cross, self._scale
+        from_loads = self._loads_residual(load_prints, load_forces)
         if len(probes) == 1:
-            return self._one_probe(q, v, probes[0], footprints[0], load_prints, load_forces)
+            return self._one_probe(q, v, probes[0], footprints[0], from_loads)
         shapes = [self._box_force(fp) for fp in footprints]
         gains = [tr.zoh_q * s for s in shapes]  # the end-of-step response to a unit force
         count = len(footprints)
         free = np.empty(count)
         compliance = np.empty((count, count))
         for j, (s, fp) in enumerate(zip(shapes, footprints, strict=True)):
-            free[j] = scale * float(np.vdot(s, q))
-            for load, force in zip(load_prints, load_forces, strict=True):
-                free[j] += force * cross(load, fp)
+            free[j] = scale * float(np.vdot(s, q)) + from_loads(fp)
             for k in range(j + 1):
                 value = scale * float(np.vdot(gains[j], shapes[k])) + cross(fp, footprints[k])
                 compliance[j, k] = compliance[k, j] = value
@@ -424,16 +494,13 @@ class ModalEngine:
         v: FloatArray,
         probe: Probe,
         footprint: Footprint,
-        load_prints: Sequence[Footprint],
-        load_forces: Sequence[float],
+        from_loads: Callable[[Footprint], float],
     ) -> tuple[tuple[ProbeReading, ...], list[tuple[FloatArray, float]]]:
         """``_contact`` for the haptic loop's one probe, in scalars: F = max(0, b / c)."""
-        tr, cross = self.transition, self.residual.cross
+        tr = self.transition
         s = self._box_force(footprint)
         gain = tr.zoh_q * s
-        free = self._scale * float(np.vdot(s, q))
-        for load, force in zip(load_prints, load_forces, strict=True):
-            free += force * cross(load, footprint)
+        free = self._scale * float(np.vdot(s, q)) + from_loads(footprint)
         compliance = self._scale * float(np.vdot(gain, s)) + self.residual.own(footprint)
         force = single_contact(compliance, free + probe.depth)
         if force == 0.0:
@@ -441,6 +508,27 @@ class ModalEngine:
         q -= force * gain
         v -= (force * tr.zoh_v) * s
         return (_reading(force, free - compliance * force, probe.depth, compliance),), [(s, force)]
+
+    def _loads_residual(
+        self, prints: Sequence[Footprint], forces: Sequence[float]
+    ) -> Callable[[Footprint], float]:
+        """The loads' residual displacement under a probe's footprint: one combined box for
+        the Gaussian loads (built once per step, whatever the number of probes), pairwise
+        closed forms for point loads and point probes."""
+        cross = self.residual.cross
+        pairs = [(fp, f) for fp, f in zip(prints, forces, strict=True) if f != 0.0]
+        if not pairs or not self.residual.enabled:
+            return lambda probe: 0.0
+        spread = [(fp, f) for fp, f in pairs if not fp.is_point]
+        box = self.residual.combined(spread) if spread else None
+
+        def residual(probe: Footprint) -> float:
+            if probe.is_point:
+                return sum(f * cross(fp, probe) for fp, f in pairs)
+            total = 0.0 if box is None else self.residual.against(box, probe)
+            return total + sum(f * cross(fp, probe) for fp, f in pairs if fp.is_point)
+
+        return residual
 
     def _project(self, shape: ArrayLike | None, what: str) -> tuple[FloatArray, float]:
         if shape is None:
@@ -460,6 +548,15 @@ def _smallest_radius(reach: int) -> float:
     while gaussian_reach(radius) > reach:  # ceil(4 / r) <= reach, despite rounding
         radius = math.nextafter(radius, math.inf)
     return radius
+
+
+def _require_finite(q: FloatArray, v: FloatArray, readings: Sequence[ProbeReading]) -> None:
+    """Refuse a step whose response overflowed (inputs within their bounds never do; this is
+    the guarantee that no state holds inf or NaN)."""
+    if not (np.isfinite(q).all() and np.isfinite(v).all()):
+        raise InvalidLoad("this step's response is not finite: its forces or depths are too large")
+    if not all(math.isfinite(r.force) for r in readings):
+        raise InvalidProbe("this step's contact forces are not finite: its depths are too large")
 
 
 def _reading(force: float, displacement: float, depth: float, compliance: float) -> ProbeReading:

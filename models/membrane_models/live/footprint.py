@@ -39,6 +39,7 @@ from numpy.typing import NDArray
 from scipy.special import wofz
 
 __all__ = [
+    "CACHE_BYTES",
     "EDGE_CAP",
     "EDGE_FREE",
     "Footprint",
@@ -55,6 +56,11 @@ EDGE_FREE = 6.2  # radii from an edge beyond which its term is below exp(-38) ~ 
 EDGE_CAP = {1: 2**14, 2: 2**8}  # modes per axis for the edge part: string, membrane
 _EDGE_TOLERANCE = 1e-8  # an edge-cut footprint's 1/m part is kept while e / m^2 exceeds this
 _CACHE_BYTES = 32 * 2**20  # spectra kept for footprints that come back (a load held in place)
+# The Gaussian factors kept: at most 64 of at most 4,096 modes (two arrays each): 4 MiB.
+_FACTOR_CACHE_ENTRIES = 64
+_FACTOR_CACHED_COUNT = 4096
+# What the caches above hold at most, shared by every engine of the process.
+CACHE_BYTES = _CACHE_BYTES + _FACTOR_CACHE_ENTRIES * 2 * 8 * _FACTOR_CACHED_COUNT
 
 
 @dataclass(frozen=True)
@@ -126,9 +132,19 @@ def _add_edges(values: FloatArray, centre: float, radius: float, phases: FloatAr
         values -= signs * math.exp(-(right**2)) * wofz(u + 1j * right).imag
 
 
-@functools.lru_cache(maxsize=64)
 def _gauss_factor(radius: float, count: int) -> tuple[FloatArray, FloatArray]:
-    """2 exp(-(m pi r)^2 / 4) and m pi for m = 1 .. count (read-only)."""
+    """2 exp(-(m pi r)^2 / 4) and m pi for m = 1 .. count (read-only); short ones cached."""
+    if count <= _FACTOR_CACHED_COUNT:
+        return _cached_gauss_factor(radius, count)
+    return _compute_gauss_factor(radius, count)
+
+
+@functools.lru_cache(maxsize=_FACTOR_CACHE_ENTRIES)
+def _cached_gauss_factor(radius: float, count: int) -> tuple[FloatArray, FloatArray]:
+    return _compute_gauss_factor(radius, count)
+
+
+def _compute_gauss_factor(radius: float, count: int) -> tuple[FloatArray, FloatArray]:
     phases = np.pi * np.arange(1, count + 1, dtype=np.float64)
     factor = 2.0 * np.exp(-((radius * phases) ** 2) / 4.0)
     factor.setflags(write=False)

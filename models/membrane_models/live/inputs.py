@@ -16,10 +16,25 @@ import numpy as np
 from membrane_models.live.errors import InvalidLoad, InvalidProbe, LiveError
 from membrane_models.live.interface import Load, LoadLike, Probe, ProbeLike
 
-__all__ = ["MAX_LOADS", "MAX_PROBES", "inside_domain", "parse_loads", "parse_probes"]
+__all__ = [
+    "MAX_DEPTH",
+    "MAX_FORCE",
+    "MAX_LOADS",
+    "MAX_PROBES",
+    "MAX_RADIUS",
+    "inside_domain",
+    "parse_loads",
+    "parse_probes",
+]
 
 MAX_LOADS = 64
 MAX_PROBES = 8
+# Magnitudes in problem units (the domain is 1 long, responses are about 1e-3 per unit force):
+# far past any meaningful input, and small enough that no sum of a step can overflow float64
+# nor a frame float32.
+MAX_FORCE = 1e6
+MAX_DEPTH = 1e3
+MAX_RADIUS = 10.0  # wider, a Gaussian is uniform over the domain to within 1 %
 _LOAD_KEYS = frozenset({"at", "force", "radius"})
 _PROBE_KEYS = frozenset({"at", "depth", "radius"})
 
@@ -37,7 +52,7 @@ def parse_loads(loads: Sequence[LoadLike], dims: int) -> tuple[Load, ...]:
             type(item) is Load
             and _clean(item.at, dims, item.radius, item.radius)
             and type(item.force) is float
-            and math.isfinite(item.force)
+            and -MAX_FORCE <= item.force <= MAX_FORCE
             and inside_domain(item.at)
         ):
             out.append(item)
@@ -45,6 +60,9 @@ def parse_loads(loads: Sequence[LoadLike], dims: int) -> tuple[Load, ...]:
         fields = _fields(item, Load, _LOAD_KEYS, f"load {index}", InvalidLoad)
         at = _point(fields["at"], dims, f"load {index}", InvalidLoad)
         force = _number(fields["force"], f"load {index} force", InvalidLoad)
+        if abs(force) > MAX_FORCE:
+            reason = f"|force| must be at most {MAX_FORCE:g}, got {force:.6g}"
+            raise InvalidLoad(f"load {index}: {reason}")
         radius = _radius(fields["radius"], f"load {index}", InvalidLoad)
         if not inside_domain(at):
             raise InvalidLoad(f"load {index}: at {_coords(at)} lies outside the unit domain")
@@ -72,6 +90,9 @@ def parse_probes(probes: Sequence[ProbeLike], dims: int) -> tuple[Probe, ...]:
                 f"probe {index}: depth must be >= 0 (the tip's face below the rest surface), "
                 f"got {depth:.6g}"
             )
+        if depth > MAX_DEPTH:
+            reason = f"depth must be at most {MAX_DEPTH:g}, got {depth:.6g}"
+            raise InvalidProbe(f"probe {index}: {reason}")
         radius = _radius(fields["radius"], f"probe {index}", InvalidProbe)
         out.append(Probe(at, depth, radius))
     return tuple(out)
@@ -90,8 +111,8 @@ def _clean(at: object, dims: int, nonnegative: object, radius: object) -> bool:
         and all(type(x) is float and math.isfinite(x) for x in at)
         and type(nonnegative) is float
         and type(radius) is float
-        and 0.0 <= nonnegative < math.inf
-        and 0.0 <= radius < math.inf
+        and 0.0 <= nonnegative <= MAX_DEPTH
+        and 0.0 <= radius <= MAX_RADIUS
     )
 
 
@@ -157,8 +178,8 @@ def _point(value: object, dims: int, what: str, error: type[LiveError]) -> tuple
 
 def _radius(value: object, what: str, error: type[LiveError]) -> float:
     radius = _number(value, f"{what} radius", error)
-    if radius < 0.0:
-        raise error(f"{what}: radius must be >= 0, got {radius:.6g}")
+    if not 0.0 <= radius <= MAX_RADIUS:
+        raise error(f"{what}: radius must be >= 0 and at most {MAX_RADIUS:g}, got {radius:.6g}")
     return radius
 
 

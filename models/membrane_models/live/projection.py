@@ -19,7 +19,9 @@ from membrane_models.live.errors import InvalidShape
 from membrane_models.live.modes import ModeSet
 from membrane_models.live.synthesis import LatticeSynthesis
 
-__all__ = ["project"]
+__all__ = ["MAX_SHAPE_VALUE", "project"]
+
+MAX_SHAPE_VALUE = 1e3  # the largest |value| of an initial displacement or velocity
 
 FloatArray = NDArray[np.float64]
 
@@ -50,6 +52,11 @@ def project(
         )
     if not np.all(np.isfinite(values)):
         raise InvalidShape(f"the initial {what} must be finite (it holds NaN or inf)")
+    if values.size and float(np.max(np.abs(values))) > MAX_SHAPE_VALUE:
+        raise InvalidShape(
+            f"the initial {what} must stay within +-{MAX_SHAPE_VALUE:g} problem units "
+            "(the linear model's range; a larger value would overflow its sums)"
+        )
     values = values.reshape(lattice)
     coefficients = values
     for axis, n in enumerate(lattice):

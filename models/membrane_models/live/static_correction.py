@@ -26,6 +26,8 @@ subtracted from it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -91,6 +93,36 @@ class ResidualFlexibility:
         nx, ny = min(len(sa[0]), len(sb[0])), min(len(sa[1]), len(sb[1]))
         w = self.weights((nx, ny))
         return self._scale * float((sa[0][:nx] * sb[0][:nx]) @ w @ (sa[1][:ny] * sb[1][:ny]))
+
+    def combined(self, applied: Sequence[tuple[Footprint, float]]) -> FloatArray:
+        """The residual field's modal coefficients of several Gaussian footprints at once,
+        sum F s_k / w_k^2, on the box of the longest spectra (one matrix product on the
+        membrane: the sum of the footprints' outer products is S_x^T diag(F) S_y)."""
+        counts = tuple(max(len(fp.spectra[a]) for fp, _ in applied) for a in range(self.dims))
+        w = self.weights(counts)
+        if self.dims == 1:
+            total = np.zeros(counts[0])
+            for footprint, force in applied:
+                spectrum = footprint.spectra[0]
+                total[: len(spectrum)] += force * spectrum
+            return np.asarray(total * w)
+        sx = np.zeros((len(applied), counts[0]))
+        sy = np.zeros((len(applied), counts[1]))
+        for row, (footprint, force) in enumerate(applied):
+            x, y = footprint.spectra
+            sx[row, : len(x)] = force * x
+            sy[row, : len(y)] = y
+        return np.asarray((sx.T @ sy) * w)
+
+    def against(self, coefficients: FloatArray, footprint: Footprint) -> float:
+        """The displacement under ``footprint`` of a residual field given by its modal
+        ``coefficients`` (``combined``'s): 2^-d s . coefficients, as far as both reach."""
+        if self.dims == 1:
+            n = min(len(coefficients), len(footprint.spectra[0]))
+            return self._scale * float(np.dot(footprint.spectra[0][:n], coefficients[:n]))
+        x, y = footprint.spectra
+        nx, ny = min(coefficients.shape[0], len(x)), min(coefficients.shape[1], len(y))
+        return self._scale * float(x[:nx] @ coefficients[:nx, :ny] @ y[:ny])
 
     def own(self, footprint: Footprint) -> float:
         """r(a, a): the footprint's own residual compliance (the probe's, every step)."""

@@ -14,11 +14,11 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["LatticeSynthesis"]
+__all__ = ["DENSE_TABLE_ELEMENTS", "LatticeSynthesis"]
 
 FloatArray = NDArray[np.float64]
 
-_DENSE_TABLE_ELEMENTS = 2**20  # a sine table up to this size (8 MiB) per axis; beyond, fold
+DENSE_TABLE_ELEMENTS = 2**20  # a sine table up to this size (8 MiB) per axis; beyond, fold
 
 
 class LatticeSynthesis:
@@ -55,7 +55,7 @@ class LatticeSynthesis:
         factors = []
         for axis in range(z.ndim):
             count = z.shape[axis]
-            if self.shape[axis] * count <= _DENSE_TABLE_ELEMENTS:
+            if self.shape[axis] * count <= DENSE_TABLE_ELEMENTS:
                 factors.append(self.sines(axis, count))
             else:
                 z = self._fold(z, axis)
