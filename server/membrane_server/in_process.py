@@ -22,12 +22,13 @@ __all__ = ["InProcessTransport"]
 class InProcessTransport:
     """``membrane_client.transport.Transport`` over a Dispatcher's ``handle``."""
 
-    def __init__(self, dispatcher: Dispatcher) -> None:
+    def __init__(self, dispatcher: Dispatcher, peer: str = "") -> None:
         self.dispatcher = dispatcher
+        self.peer = peer  # who the dispatcher is told sent each request (e.g. "key:...")
 
     def round_trip(self, payload: bytes) -> bytes:
         """The dispatcher's reply to ``payload`` (it never raises: errors are replies)."""
-        return self.dispatcher.handle([payload]).reply
+        return self.dispatcher.handle([payload], self.peer).reply
 
     def close(self) -> None:
         """Nothing to release: the dispatcher belongs to the caller."""
