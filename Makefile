@@ -38,9 +38,12 @@ test: $(VENV)/.dev-installed
 test-fast: $(VENV)/.dev-installed
 	$(BIN)/python -m pytest -q -m "not slow"
 
+# The same static checks as `make test`, without the suite. Formatting is not enforced: the tree
+# does not follow `ruff format`'s layout everywhere (README code blocks, docs, older modules), so a
+# format check would fail on code that is fine; `ruff check` (lint rules, import order, line
+# length) is what CI enforces.
 lint: $(VENV)/.dev-installed
 	$(BIN)/ruff check .
-	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 	$(BIN)/lint-imports --no-cache
 

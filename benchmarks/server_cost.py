@@ -56,9 +56,9 @@ def live_server(case: Case, rate: float) -> str:
     inner = server.dispatcher.handle
     samples: list[int] = []
 
-    def timed(body: Sequence[bytes]) -> Answer:
+    def timed(body: Sequence[bytes], peer: str = "") -> Answer:
         started = time.perf_counter_ns()
-        answer = inner(body)
+        answer = inner(body, peer)
         samples.append(time.perf_counter_ns() - started)
         return answer
 

@@ -13,22 +13,29 @@ Exit codes follow the exception tree of ``membrane_errors``:
   it), a missing extra (one line naming the extra to install).
 - 1: the job failed: another ``MembraneError`` (one line), or a bug: any other exception, whose
   traceback is printed. ``-v`` prints the traceback of every failure.
+
+A reader that stops early (``membrane query --t 0.5 --json | head``) ends every command quietly:
+nothing on stderr, the rest of the output discarded, exit code 0 (not the shell's 141 for
+SIGPIPE). The dispatcher handles this once, for every package's commands (see ``main``).
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
+import select
 import sys
 import traceback
 from collections.abc import Callable, Sequence
+from importlib import metadata
 from importlib.metadata import entry_points
 from typing import NoReturn
 
 from membrane_cli.arguments import UsageError
 from membrane_errors import MembraneError, UserError
 
-__all__ = ["DISTRIBUTION", "EXTRA_FOR_MODULE", "OneLineParser", "UsageError", "main"]
+__all__ = ["DISTRIBUTION", "EXTRA_FOR_MODULE", "OneLineParser", "UsageError", "main", "version"]
 
 COMMAND_GROUP = "membrane.commands"
 
@@ -51,6 +58,26 @@ EXTRA_FOR_MODULE: dict[str, str] = {
 }
 
 
+# Older installs carry the distribution's former name; the server's `hello` reads the same two.
+_DISTRIBUTIONS = (DISTRIBUTION, "membrane")
+
+EPILOG = (
+    "Exit codes: 0 success, 1 the job failed, 2 bad input, 130 interrupted. When the reader of "
+    "the output goes away early (membrane query --t 0.5 --json | head), the command stops "
+    "quietly with exit code 0."
+)
+
+
+def version() -> str:
+    """'membrane X.Y.Z' from the installed distribution's metadata, as the server's ``hello``."""
+    for distribution in _DISTRIBUTIONS:
+        try:
+            return f"membrane {metadata.version(distribution)}"
+        except metadata.PackageNotFoundError:
+            continue
+    return "membrane (not installed)"
+
+
 class OneLineParser(argparse.ArgumentParser):
     """An ArgumentParser whose errors are one line on stderr and exit code 2."""
 
@@ -62,7 +89,9 @@ def _build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="membrane",
         description="Real-time soft-tissue engine: physics-informed networks served over ZeroMQ.",
+        epilog=EPILOG,
     )
+    parser.add_argument("--version", action="version", version=version())
     parser.add_argument(
         "-v",
         "--verbose",
@@ -97,7 +126,61 @@ def _missing_extra_message(exc: ModuleNotFoundError) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the `membrane` command line; returns the process exit code."""
+    """Run the `membrane` command line; returns the process exit code.
+
+    A reader of standard output that goes away (a closed pipe: ``| head``) ends the command
+    quietly, as Python's documentation of SIGPIPE recommends: standard output is pointed at
+    os.devnull, so that the interpreter's own flush at exit cannot fail again. Output cut short
+    exits 0; a command that had finished keeps its own exit code. A broken pipe that is not
+    standard output's (a socket, a child process) is not this case and keeps its traceback.
+    """
+    try:
+        code = _run(argv)
+    except BrokenPipeError:
+        if not _stdout_reader_gone():
+            raise
+        _discard_stdout()
+        return 0
+    except SystemExit:  # argparse's --help, --version and usage errors: output still buffered
+        _flush_stdout()
+        raise
+    _flush_stdout()
+    return code
+
+
+def _flush_stdout() -> None:
+    """Flush what is buffered now, so that a closed pipe fails here, not at the interpreter's
+    exit (a traceback-like message and exit code 120)."""
+    if sys.stdout is None:
+        return
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        if not _stdout_reader_gone():
+            raise
+        _discard_stdout()
+
+
+def _stdout_reader_gone() -> bool:
+    """Whether standard output is a pipe (or socket) whose reading end has been closed."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        return False
+    if not hasattr(select, "poll"):  # Windows: no poll; the error came from writing, trust it
+        return True
+    poller = select.poll()
+    poller.register(fd, select.POLLOUT)
+    return any(events & (select.POLLERR | select.POLLHUP) for _, events in poller.poll(0))
+
+
+def _discard_stdout() -> None:
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+
+
+def _run(argv: Sequence[str] | None) -> int:
     parser = _build_parser()
     args = parser.parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]

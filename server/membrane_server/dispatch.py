@@ -312,6 +312,9 @@ class Dispatcher:
             "limits": {
                 "max_request_bytes": MAX_REQUEST_BYTES,
                 "max_lattice_points": MAX_LATTICE_POINTS,
+                "max_sessions": self.sessions.max_sessions,
+                "max_sessions_per_peer": self.sessions.max_per_peer,
+                "session_idle_s": self.sessions.idle_s,
             },
         }
 

@@ -414,12 +414,12 @@ def test_the_serve_loop_survives_any_exception_from_one_request() -> None:
         handle = server.dispatcher.handle
         calls = 0
 
-        def raising_once(body: list[bytes]) -> object:
+        def raising_once(body: list[bytes], peer: str = "") -> object:
             nonlocal calls
             calls += 1
             if calls == 1:
                 raise RecursionError("maximum recursion depth exceeded")
-            return handle(body)
+            return handle(body, peer)
 
         server.dispatcher.handle = raising_once  # type: ignore[method-assign,assignment]
         dealer = _dealer(server.address)
