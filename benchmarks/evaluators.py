@@ -29,8 +29,8 @@ from typing import Any
 from membrane_bench.bench import BenchReport, probe, run_bench
 from membrane_bench.loadtest import LoadSpec
 from membrane_client.client import Client
+from membrane_models.artifacts.zoo_index import list_models, resolve_model
 from membrane_models.problems import make_problem
-from membrane_models.zoo_index import list_models, resolve_model
 from membrane_server.scene import load_scene
 from membrane_server.tradeoff import SCENE_PROBLEMS, Case, CaseServer
 

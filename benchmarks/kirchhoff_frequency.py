@@ -20,8 +20,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from membrane_models.nonlinear_string import KirchhoffString, frequency_ratio, solve_kirchhoff
-from membrane_models.string_shapes import pluck
+from membrane_models.exact.kirchhoff_carrier import (
+    KirchhoffString,
+    frequency_ratio,
+    solve_kirchhoff,
+)
+from membrane_models.problems.string_shapes import pluck
 
 FloatArray = NDArray[np.float64]
 

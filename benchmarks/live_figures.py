@@ -24,11 +24,11 @@ import time
 import numpy as np
 from numpy.typing import NDArray
 
+from membrane_models.exact.forced import forced_modal_solution
+from membrane_models.exact.spectrum import gaussian_sine_integrals
 from membrane_models.live import Load, ModalEngine, Probe, film_frames
 from membrane_models.live.static_correction import string_green
-from membrane_models.modal import forced_modal_solution
 from membrane_models.problems import MembraneForced, Problem, StringForced, make_problem
-from membrane_models.spectrum import gaussian_sine_integrals
 
 FloatArray = NDArray[np.float64]
 SCENES = {"membrane": ("membrane-forced", 20), "rope": ("string-forced", 100)}

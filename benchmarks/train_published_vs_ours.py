@@ -2,9 +2,9 @@
 
 Published (seed-facts.md): STMsFFN [d+1]+[100]*3+[1] with its sigmas, Adam 1e-3 with
 inverse-time decay (0.9 every 2000 steps), 1440 scattered collocation points resampled every
-step, soft initial conditions (applied at t = 0), no output scaling, float32. Ours: the shipped
-recipe (``membrane_models.training.RECIPES``). Both train on this machine, one after the other,
-each for at most ``--budget`` seconds of training time; the relative L2 error against the exact
+step, soft initial conditions (applied at t = 0), no output scaling, float32. Ours: the
+shipped recipe (``membrane_models.learned.training.RECIPES``). Both train on this machine, one
+after the other, each for at most ``--budget`` seconds of training time; the relative L2 error against the exact
 solution on the standard grid is recorded every ``--every`` iterations (not counted in the time).
 
 Writes ``OUT/results.json``, ``OUT/table.md`` and ``OUT/curves.png``. Problems already in
@@ -25,10 +25,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from membrane_models.evaluate import reference_on_grid
+from membrane_models.artifacts.evaluate import reference_on_grid
+from membrane_models.learned.training import TrainConfig, recipe, train
+from membrane_models.learned.transforms import PhysicalModel
 from membrane_models.problems import make_problem
-from membrane_models.training import TrainConfig, recipe, train
-from membrane_models.transforms import PhysicalModel
 
 logger = logging.getLogger("train_published_vs_ours")
 

@@ -10,7 +10,7 @@
 - ``exact``: the exact reference solution (membrane_models.exact), its grid frames computed
   once at load in float64 when they fit in the scene's table budget. Its working memory (the
   series' tables, the modes' values on the lattice) counts against that budget too: it is
-  evaluated in a form that fits (see ``membrane_models.modal``), or refused at load with the
+  evaluated in a form that fits (see ``membrane_models.exact.forced``), or refused at load with the
   figure, and only what is left goes to frames.
 
 Evaluators are stateless: a frame depends on t alone, so any number of clients share one.
@@ -29,9 +29,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from membrane_models.manifest import Manifest
+from membrane_models.artifacts.manifest import Manifest
+from membrane_models.exact.solution import ExactSolution, MemoryBudgetExceeded, PointFrames
 from membrane_models.problems import Problem
-from membrane_models.solution import ExactSolution, MemoryBudgetExceeded, PointFrames
 from membrane_server.runtime import GraphRunner, load_graph
 from membrane_server.scene import DEFAULT_TABLE_MAX_BYTES, Scene, SceneError
 from membrane_server.source import ModelSource

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
-from membrane_models.manifest import Manifest
+from membrane_models.artifacts.manifest import Manifest
 from membrane_server.scene import SceneError
 
 __all__ = ["OPTIMIZATION_LEVELS", "GraphRunner", "load_graph", "session_options"]

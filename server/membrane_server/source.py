@@ -5,9 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from membrane_models.manifest import Manifest
+from membrane_models.artifacts.manifest import Manifest
+from membrane_models.artifacts.zoo_index import list_models, resolve_model
 from membrane_models.problems import PROBLEMS, Problem, make_problem
-from membrane_models.zoo_index import list_models, resolve_model
 from membrane_server.scene import Scene, SceneError, problem_overrides
 
 __all__ = ["ModelSource", "resolve_source"]

@@ -32,10 +32,10 @@ import numpy as np
 
 from membrane_client.client import Client
 from membrane_errors import MembraneError
+from membrane_models.artifacts.manifest import Manifest
+from membrane_models.artifacts.zoo_index import list_models, resolve_model
 from membrane_models.exact import exact_solution
-from membrane_models.manifest import Manifest
 from membrane_models.problems import make_problem
-from membrane_models.zoo_index import list_models, resolve_model
 from membrane_server.dispatch import ServedScene
 from membrane_server.evaluators import build_evaluator
 from membrane_server.runtime import OPTIMIZATION_LEVELS

@@ -55,7 +55,7 @@ def add_tradeoff(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]
 
 
 def _run_tradeoff(args: argparse.Namespace) -> int:
-    from membrane_models.zoo_index import list_models
+    from membrane_models.artifacts.zoo_index import list_models
     from membrane_server.tradeoff import (
         SCENE_PROBLEMS,
         Case,

@@ -1,4 +1,5 @@
-"""Small untrained ONNX models that follow the manifest contract (membrane_models.manifest).
+"""Small untrained ONNX models that follow the manifest contract
+(membrane_models.artifacts.manifest).
 
 Built with the ``onnx`` helper API, so server tests need no training and no torch. Each model is
 separable by construction:
@@ -20,7 +21,7 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
-from membrane_models.manifest import GraphFile, Manifest, sha256_of
+from membrane_models.artifacts.manifest import GraphFile, Manifest, sha256_of
 from membrane_models.problems import make_problem
 
 __all__ = ["TestModel", "build_test_model", "reference_full"]

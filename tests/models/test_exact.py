@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 from scipy.integrate import IntegrationWarning, quad
 
-from membrane_models.duhamel import BumpResponse, quasi_static_constant
 from membrane_models.exact import (
     ExactSolution,
     ForcedModalSolution,
@@ -20,9 +19,10 @@ from membrane_models.exact import (
     PluckedFourier,
     exact_solution,
 )
-from membrane_models.plucked import pluck_extension
+from membrane_models.exact.duhamel import BumpResponse, quasi_static_constant
+from membrane_models.exact.plucked import pluck_extension
+from membrane_models.exact.spectrum import GaussianProfile, gaussian_sine_integrals
 from membrane_models.problems import MembraneForced, StringForced, StringPlucked, make_problem
-from membrane_models.spectrum import GaussianProfile, gaussian_sine_integrals
 
 
 def _quad(
@@ -253,7 +253,7 @@ def test_unreachable_rtol_is_reported_not_hidden(caplog: pytest.LogCaptureFixtur
     """A force at the corner has a slowly decaying spectrum: the memory limits stop the series
     short of rtol, and the error achieved is stated (and logged), not rtol."""
     problem = make_problem("membrane-forced", {"x0": "0.999", "y0": "0.001"})
-    with caplog.at_level(logging.WARNING, logger="membrane_models.modal"):
+    with caplog.at_level(logging.WARNING, logger="membrane_models.exact.forced"):
         solution = exact_solution(problem, rtol=1e-10)
     assert solution.truncation_error > 1e-10
     assert "exceeds rtol" in caplog.text

@@ -10,18 +10,18 @@ import pytest
 import torch
 
 from membrane_cli.dispatcher import main
-from membrane_models.architectures import (
+from membrane_models.artifacts.evaluate import evaluate_model, onnx_session
+from membrane_models.artifacts.manifest import Manifest
+from membrane_models.artifacts.zoo_index import resolve_model
+from membrane_models.learned.architectures import (
     ArchConfig,
     GaussianFeatures,
     HarmonicFeatures,
     SpinnConfig,
     StmsffnConfig,
 )
-from membrane_models.evaluate import evaluate_model, onnx_session
-from membrane_models.export import PARITY_TOLERANCE, export_checkpoint, export_model
-from membrane_models.manifest import Manifest
-from membrane_models.training import build_model, recipe, train
-from membrane_models.zoo_index import resolve_model
+from membrane_models.learned.export import PARITY_TOLERANCE, export_checkpoint, export_model
+from membrane_models.learned.training import build_model, recipe, train
 
 TINY = SpinnConfig(
     rank=4,

@@ -14,8 +14,8 @@ import math
 import numpy as np
 import pytest
 
+from membrane_models.checks.linear_fd import solve_fd
 from membrane_models.exact import exact_solution
-from membrane_models.fd import solve_fd
 from membrane_models.problems import make_problem
 
 

@@ -11,18 +11,18 @@ import pytest
 from scipy.special import ndtr
 
 from membrane_cli.dispatcher import main
-from membrane_models.data_cli import _Progress
-from membrane_models.koopman_data import (
+from membrane_models.commands.data import _Progress
+from membrane_models.data.koopman import (
     SPLITS,
     DatasetError,
     DatasetSpec,
     initial_state,
     write_datasets,
 )
-from membrane_models.nonlinear_string import sine_basis
-from membrane_models.plucked import pluck_extension
+from membrane_models.exact.kirchhoff_carrier import sine_basis
+from membrane_models.exact.plucked import pluck_extension
 from membrane_models.problems import StringPlucked, make_problem
-from membrane_models.string_shapes import FAMILIES, pluck, square_pulse
+from membrane_models.problems.string_shapes import FAMILIES, pluck, square_pulse
 
 SMALL = DatasetSpec(counts=(2, 1, 1), steps=20, families=("square", "noise", "pluck"))
 

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from membrane_models.exact.forced import forced_modal_solution
 from membrane_models.live import ModalEngine, film_frames, film_load
-from membrane_models.modal import forced_modal_solution
 from membrane_models.problems import MembraneForced, StringForced, make_problem
 
 FloatArray = NDArray[np.float64]

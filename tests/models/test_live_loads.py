@@ -10,11 +10,11 @@ import pytest
 from numpy.typing import NDArray
 from scipy.integrate import quad
 
+from membrane_models.exact.spectrum import gaussian_sine_integrals
 from membrane_models.live import InvalidLoad, Load, ModalEngine, ModalState
 from membrane_models.live.cost import StepTooCostly
 from membrane_models.live.inputs import MAX_LOADS
 from membrane_models.problems import make_problem
-from membrane_models.spectrum import gaussian_sine_integrals
 
 FloatArray = NDArray[np.float64]
 STRING = make_problem("string-forced")  # c = 10

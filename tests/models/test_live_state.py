@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from membrane_models.exact.plucked import PluckedDAlembert
 from membrane_models.live import (
     InvalidEngineSettings,
     InvalidShape,
@@ -17,7 +18,6 @@ from membrane_models.live import (
     ModalState,
     Probe,
 )
-from membrane_models.plucked import PluckedDAlembert
 from membrane_models.problems import StringPlucked, make_problem
 
 FloatArray = NDArray[np.float64]

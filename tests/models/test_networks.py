@@ -7,23 +7,23 @@ import json
 import pytest
 import torch
 
-from membrane_models.architectures import (
+from membrane_models.artifacts.zoo_index import ZOO_DIR
+from membrane_models.learned.architectures import (
     GaussianFeatures,
     HarmonicFeatures,
     SpinnConfig,
     StmsffnConfig,
     arch_from_dict,
 )
-from membrane_models.networks import (
+from membrane_models.learned.networks import (
     AxisNetwork,
     SeparableCore,
     SeparablePINN,
     STMsFFN,
     core_from_config,
 )
+from membrane_models.learned.transforms import PhysicalModel, characteristic_amplitude
 from membrane_models.problems import StringPlucked, make_problem
-from membrane_models.transforms import PhysicalModel, characteristic_amplitude
-from membrane_models.zoo_index import ZOO_DIR
 
 D = torch.float64
 
@@ -164,7 +164,7 @@ def test_config_round_trip_and_unknown_name() -> None:
 
 def test_shipped_manifests_rebuild_with_their_architecture() -> None:
     # The manifests' plain form is what the typed configs write, key for key and in order.
-    from membrane_models.training import build_model, recipe
+    from membrane_models.learned.training import build_model, recipe
 
     for name in ("string-forced", "membrane-forced", "string-plucked", "string-plucked-smooth"):
         manifest = json.loads((ZOO_DIR / f"{name}.json").read_text())

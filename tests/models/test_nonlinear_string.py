@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 from scipy.special import ellipj, ellipk
 
-from membrane_models.nonlinear_fd import solve_kirchhoff_fd
-from membrane_models.nonlinear_string import (
+from membrane_models.checks.kirchhoff_fd import solve_kirchhoff_fd
+from membrane_models.exact.kirchhoff_carrier import (
     KirchhoffString,
     frequency_ratio,
     solve_kirchhoff,
 )
-from membrane_models.plucked import PluckedDAlembert, pluck_extension
+from membrane_models.exact.plucked import PluckedDAlembert, pluck_extension
 from membrane_models.problems import InvalidProblem, StringPlucked, make_problem
-from membrane_models.string_shapes import pluck
+from membrane_models.problems.string_shapes import pluck
 
 STRING = KirchhoffString(c=1.0, k=100.0)
 

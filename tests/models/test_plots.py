@@ -11,8 +11,8 @@ import pytest
 
 pytest.importorskip("matplotlib")
 
-from membrane_models.evaluate import ErrorReport, comparison_figure
-from membrane_models.plotting import solution_figure
+from membrane_models.artifacts.evaluate import ErrorReport, comparison_figure
+from membrane_models.commands.plotting import solution_figure
 
 
 def _report(exact: np.ndarray, axes: list[np.ndarray]) -> ErrorReport:

@@ -10,10 +10,9 @@ import pytest
 import torch
 
 from membrane_errors import UserError
-from membrane_models.architectures import HarmonicFeatures, SpinnConfig, StmsffnConfig
 from membrane_models.exact import exact_solution
-from membrane_models.problems import StringPlucked, make_problem
-from membrane_models.training import (
+from membrane_models.learned.architectures import HarmonicFeatures, SpinnConfig, StmsffnConfig
+from membrane_models.learned.training import (
     TrainConfig,
     build_model,
     load_checkpoint,
@@ -21,12 +20,13 @@ from membrane_models.training import (
     recipe,
     train,
 )
-from membrane_models.training.losses import (
+from membrane_models.learned.training.losses import (
     kink_coefficients,
     kink_series,
     sine_coefficients,
 )
-from membrane_models.transforms import initial_shape_jet
+from membrane_models.learned.transforms import initial_shape_jet
+from membrane_models.problems import StringPlucked, make_problem
 
 TINY_SPINN = SpinnConfig(
     rank=6,
@@ -181,7 +181,7 @@ def test_modal_term_sees_the_kink_that_points_cannot() -> None:
 def test_pointwise_residual_sees_the_kink_through_its_first_modes() -> None:
     # On a midpoint grid, the series added to the pointwise residual has exactly the Dirac's
     # sine coefficients up to kink_modes and none above.
-    from membrane_models.training import Collocation
+    from membrane_models.learned.training import Collocation
 
     model = build_model(recipe("string-plucked"))
     x = (torch.arange(512, dtype=torch.float64) + 0.5) / 512
@@ -201,7 +201,7 @@ def test_pointwise_residual_sees_the_kink_through_its_first_modes() -> None:
 def test_lbfgs_grid_is_redrawn_on_schedule_or_kept(
     monkeypatch: pytest.MonkeyPatch, every: int, grids: int
 ) -> None:
-    import membrane_models.training.loop as loop
+    import membrane_models.learned.training.loop as loop
 
     drawn: list[bool] = []
     original = loop.sample_collocation
@@ -221,8 +221,8 @@ def test_lbfgs_grid_is_redrawn_on_schedule_or_kept(
 def test_projected_residual_is_the_projection_of_the_pointwise_residual(problem: str) -> None:
     # By parts on a uniform grid against the pointwise residual projected on a fine one
     # (the kinked pluck's Dirac added analytically on both sides).
-    from membrane_models.training.collocation import forcing_grid
-    from membrane_models.training.losses import projected_residual
+    from membrane_models.learned.training.collocation import forcing_grid
+    from membrane_models.learned.training.losses import projected_residual
 
     model = build_model(recipe(problem))
     with torch.no_grad():

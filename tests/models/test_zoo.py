@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from membrane_models.evaluate import evaluate_model, onnx_session
-from membrane_models.zoo_index import list_models, resolve_model
+from membrane_models.artifacts.evaluate import evaluate_model, onnx_session
+from membrane_models.artifacts.zoo_index import list_models, resolve_model
 
 # The accuracy each shipped model must reach (relative L2 on the standard grid).
 TARGETS = {

@@ -11,8 +11,8 @@ import onnxruntime as ort
 import pytest
 from onnx_graphs import reference_full
 
+from membrane_models.artifacts.manifest import ManifestError
 from membrane_models.exact import exact_solution
-from membrane_models.manifest import ManifestError
 from membrane_models.problems import make_problem
 from membrane_server.dispatch import ServedScene
 from membrane_server.evaluators import (

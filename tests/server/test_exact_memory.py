@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from membrane_models import modal
+from membrane_models import sines
 from membrane_models.exact import MemoryBudgetExceeded, exact_solution
-from membrane_models.modal import ForcedModalSolution
+from membrane_models.exact.forced import ForcedModalSolution
 from membrane_models.problems import make_problem
 from membrane_server.evaluators import ExactEvaluator, TableEvaluator, build_evaluator
 from membrane_server.scene import DEFAULT_TABLE_MAX_BYTES, SceneError, scene_from_dict
@@ -228,7 +228,7 @@ def test_grid_frames_equal_the_exact_solution(
 def test_chunked_frames_equal_the_exact_solution(monkeypatch: pytest.MonkeyPatch) -> None:
     """Scattered points whose dense basis does not fit: the basis is recomputed in blocks (made
     small here) per frame; served frames, precomputed and on demand, are the exact solution."""
-    monkeypatch.setattr(modal, "_CHUNK_ELEMENTS", 2**12)
+    monkeypatch.setattr(sines, "_CHUNK_ELEMENTS", 2**12)
     monkeypatch.setattr("membrane_server.evaluators.EXACT_WORKING_FLOOR_BYTES", 0)
     problem = make_problem("membrane-forced")
     points = np.random.default_rng(1).random((300, 2))

@@ -17,9 +17,9 @@ import pytest
 
 from membrane_client import Client, ServerError
 from membrane_client.protocol import MAX_LATTICE_POINTS, Request, decode, unpack_array
+from membrane_models.artifacts.zoo_index import list_models, resolve_model
 from membrane_models.exact import exact_solution
 from membrane_models.problems import make_problem
-from membrane_models.zoo_index import list_models, resolve_model
 from membrane_server.dispatch import ServedScene
 from membrane_server.runtime import load_graph
 from membrane_server.scene import SceneError, scene_from_dict
@@ -29,7 +29,7 @@ from membrane_server.timeline import OutOfDomain, Timeline
 if TYPE_CHECKING:
     from onnx_graphs import TestModel
 
-    from membrane_models.manifest import Manifest
+    from membrane_models.artifacts.manifest import Manifest
 
 KINDS = ["network", "separable", "table", "exact"]
 DT = 0.01
@@ -279,7 +279,7 @@ def test_forces_near_the_boundary_stay_finite_with_a_stated_error(
     """A force near an edge has a slowly decaying spectrum: the series may hit its memory limits
     before rtol; then the error it reaches is stated and logged, never hidden."""
     rtol = 1e-6
-    with caplog.at_level(logging.WARNING, logger="membrane_models.modal"):
+    with caplog.at_level(logging.WARNING, logger="membrane_models.exact.forced"):
         solution = exact_solution(make_problem(problem, overrides), rtol=rtol)
     axes = [np.linspace(0.0, 1.0, 33)] * solution.spatial_dims + [np.linspace(0.0, 1.5, 31)]
     u = solution.grid(*axes)

@@ -19,7 +19,7 @@ import onnxruntime as ort
 import pytest
 
 from membrane_client import Client
-from membrane_models.zoo_index import list_models, resolve_model
+from membrane_models.artifacts.zoo_index import list_models, resolve_model
 from membrane_server.server import Server
 
 TIMES = (0.0, 0.13, 0.5, 0.77, 1.0)

@@ -142,7 +142,7 @@ def test_a_zoo_model_named_like_its_problem_is_served_by_path(
     monkeypatch: pytest.MonkeyPatch, test_models: dict[str, TestModel]
 ) -> None:
     """To the exact evaluator a problem name means the problem: models go by manifest path."""
-    from membrane_models.manifest import Manifest
+    from membrane_models.artifacts.manifest import Manifest
 
     manifest = Manifest.read(test_models["string"].manifest_path)
     monkeypatch.setattr("membrane_server.tradeoff.resolve_model", lambda name: manifest)
@@ -159,7 +159,7 @@ def test_a_model_of_a_problem_variant_is_planned_on_its_problems_scene(
 ) -> None:
     from dataclasses import replace
 
-    from membrane_models.manifest import Manifest
+    from membrane_models.artifacts.manifest import Manifest
 
     smooth = replace(
         Manifest.read(test_models["string"].manifest_path), problem="string-plucked-smooth"

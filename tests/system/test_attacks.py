@@ -38,8 +38,8 @@ from membrane_client import Client
 from membrane_client.curve import client_socket_options, load_keypair
 from membrane_client.errors import MembraneError
 from membrane_client.protocol import Request, decode, encode
-from membrane_models.manifest import Manifest, ManifestError
-from membrane_models.zoo_index import resolve_model
+from membrane_models.artifacts.manifest import Manifest, ManifestError
+from membrane_models.artifacts.zoo_index import resolve_model
 from membrane_server.scene import MAX_STEPS, SceneError, scene_from_dict
 from membrane_server.source import resolve_source
 from membrane_server.stats import Stats

@@ -34,7 +34,10 @@ def test_every_package_is_a_root_and_the_source_of_one_contract() -> None:
     config = _config()
     assert set(config["root_packages"]) == _our_packages()
     sources = [module for c in config["contracts"] for module in c["source_modules"]]
-    assert sorted(sources) == sorted(_our_packages()), "one contract per package"
+    top_level = [module for module in sources if "." not in module]
+    assert sorted(top_level) == sorted(_our_packages()), "one contract per package"
+    inner = {module.split(".")[0] for module in sources if "." in module}
+    assert inner <= _our_packages()  # contracts inside a package name real subpackages
 
 
 def test_no_package_of_ours_is_left_out_of_the_wheel() -> None:
@@ -44,14 +47,27 @@ def test_no_package_of_ours_is_left_out_of_the_wheel() -> None:
 
 
 @pytest.mark.slow
-def test_a_broken_contract_fails_lint_imports_and_is_named(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    ("added", "contract", "chain"),
+    [
+        ("import torch", "server: never imports torch", "membrane_server.dispatch -> torch"),
+        (
+            "import membrane_models.learned.networks",
+            "server: never imports torch, onnx, membrane_models.learned",
+            "membrane_server.dispatch -> membrane_models.learned",
+        ),
+    ],
+)
+def test_a_broken_contract_fails_lint_imports_and_is_named(
+    tmp_path: Path, added: str, contract: str, chain: str
+) -> None:
     if not LINT_IMPORTS.exists():
         pytest.fail(f"lint-imports is not installed next to {sys.executable} (the dev extra)")
     for folder in {path.parent.parent for path in ROOT.glob("*/membrane_*/__init__.py")}:
         shutil.copytree(folder, tmp_path / folder.name, ignore=shutil.ignore_patterns("*.pyc"))
     shutil.copy(ROOT / "pyproject.toml", tmp_path)
     dispatch = tmp_path / "server" / "membrane_server" / "dispatch.py"
-    dispatch.write_text(dispatch.read_text() + "\nimport torch  # noqa\n")
+    dispatch.write_text(dispatch.read_text() + f"\n{added}  # noqa\n")
     paths = ":".join(str(p.parent.parent) for p in tmp_path.glob("*/membrane_*/__init__.py"))
     result = subprocess.run(
         [str(LINT_IMPORTS), "--no-cache"],
@@ -62,5 +78,5 @@ def test_a_broken_contract_fails_lint_imports_and_is_named(tmp_path: Path) -> No
         timeout=120,
     )
     assert result.returncode != 0, result.stdout
-    assert "server: never imports torch" in result.stdout
-    assert "membrane_server.dispatch -> torch" in result.stdout
+    assert f"{contract}" in result.stdout and "BROKEN" in result.stdout
+    assert chain in result.stdout

@@ -1,4 +1,4 @@
 """Shipped models: ONNX graphs and their manifests (package data).
 
-Look them up with membrane_models.zoo_index.
+Look them up with membrane_models.artifacts.zoo_index.
 """

@@ -5,7 +5,7 @@
 - ``MODEL.onnx``        full graph  ``xt`` (n, d+1) -> ``u`` (n, 1)
 - ``MODEL.space.onnx``  space part  ``x`` (n, d) -> ``A`` (n, r)
 - ``MODEL.time.onnx``   time part   ``t`` (m, 1) -> ``B`` (m, r)
-- ``MODEL.json``        the manifest (``membrane_models.manifest``), error measured by
+- ``MODEL.json``        the manifest (``membrane_models.artifacts.manifest``), error measured by
   ``evaluate.evaluate_model`` on the written graphs.
 
 All graphs are float32 with dynamic batch axes (opset 17). Before the manifest is written, each
@@ -26,10 +26,10 @@ import torch
 from torch import Tensor, nn
 
 from membrane_errors import MembraneError
-from membrane_models.evaluate import evaluate_model, onnx_session, standard_axes
-from membrane_models.manifest import GraphFile, Manifest, sha256_of
-from membrane_models.training import load_checkpoint, model_from_checkpoint
-from membrane_models.transforms import PhysicalModel
+from membrane_models.artifacts.evaluate import evaluate_model, onnx_session, standard_axes
+from membrane_models.artifacts.manifest import GraphFile, Manifest, sha256_of
+from membrane_models.learned.training import load_checkpoint, model_from_checkpoint
+from membrane_models.learned.transforms import PhysicalModel
 
 __all__ = ["OPSET", "PARITY_TOLERANCE", "ParityError", "export_checkpoint", "export_model"]
 

@@ -14,10 +14,10 @@ from typing import Any
 import torch
 
 from membrane_errors import UserError
-from membrane_models.architectures import ArchConfig, arch_from_dict
-from membrane_models.networks import build_core
+from membrane_models.learned.architectures import ArchConfig, arch_from_dict
+from membrane_models.learned.networks import build_core
+from membrane_models.learned.transforms import PhysicalModel, characteristic_amplitude
 from membrane_models.problems import make_problem
-from membrane_models.transforms import PhysicalModel, characteristic_amplitude
 
 __all__ = ["TrainConfig", "build_model"]
 

@@ -10,8 +10,8 @@ import dataclasses
 from typing import Any
 
 from membrane_errors import UserError
-from membrane_models.architectures import HarmonicFeatures, SpinnConfig, StmsffnConfig
-from membrane_models.training.config import TrainConfig
+from membrane_models.learned.architectures import HarmonicFeatures, SpinnConfig, StmsffnConfig
+from membrane_models.learned.training.config import TrainConfig
 
 __all__ = ["PUBLISHED", "RECIPES", "recipe"]
 

@@ -19,11 +19,11 @@ import torch
 from torch import Tensor
 
 from membrane_errors import UserError
-from membrane_models.training.checkpoints import load_checkpoint, write_checkpoint
-from membrane_models.training.collocation import Collocation, sample_collocation
-from membrane_models.training.config import TrainConfig, build_model
-from membrane_models.training.losses import loss_terms
-from membrane_models.transforms import PhysicalModel
+from membrane_models.learned.training.checkpoints import load_checkpoint, write_checkpoint
+from membrane_models.learned.training.collocation import Collocation, sample_collocation
+from membrane_models.learned.training.config import TrainConfig, build_model
+from membrane_models.learned.training.losses import loss_terms
+from membrane_models.learned.transforms import PhysicalModel
 
 __all__ = ["Monitor", "TrainResult", "WeightAverage", "train"]
 

@@ -28,7 +28,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from membrane_models.architectures import (
+from membrane_models.learned.architectures import (
     ArchConfig,
     FourierSpec,
     GaussianFeatures,

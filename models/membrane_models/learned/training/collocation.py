@@ -15,8 +15,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from membrane_models.learned.training.config import TrainConfig
 from membrane_models.problems import ForcedProblem, Problem, time_bump
-from membrane_models.training.config import TrainConfig
 
 __all__ = [
     "Collocation",

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from membrane_models.plucked import pluck_extension
+from membrane_models.exact.plucked import pluck_extension
 from membrane_models.problems import (
     MembraneForced,
     Problem,

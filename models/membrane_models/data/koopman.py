@@ -29,12 +29,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from membrane_errors import UserError
-from membrane_models.nonlinear_string import (
+from membrane_models.exact.kirchhoff_carrier import (
     DEFAULT_RTOL,
     KirchhoffString,
     solve_kirchhoff,
 )
-from membrane_models.string_shapes import FAMILIES, ShapeParameters, draw_shape
+from membrane_models.problems.string_shapes import FAMILIES, ShapeParameters, draw_shape
 
 __all__ = [
     "FORMAT",

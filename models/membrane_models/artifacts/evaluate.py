@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from membrane_models.artifacts.manifest import Manifest
 from membrane_models.exact import exact_solution
-from membrane_models.manifest import Manifest
 from membrane_models.problems import Problem, make_problem
 
 __all__ = [

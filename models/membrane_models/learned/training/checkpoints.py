@@ -13,8 +13,8 @@ from typing import Any
 import torch
 
 from membrane_errors import UserError
-from membrane_models.training.config import TrainConfig, build_model
-from membrane_models.transforms import PhysicalModel
+from membrane_models.learned.training.config import TrainConfig, build_model
+from membrane_models.learned.transforms import PhysicalModel
 
 __all__ = ["CHECKPOINT_FORMAT", "load_checkpoint", "model_from_checkpoint", "write_checkpoint"]
 

@@ -14,15 +14,15 @@ import math
 import torch
 from torch import Tensor
 
-from membrane_models.problems import ForcedProblem, Problem, StringPlucked
-from membrane_models.training.collocation import (
+from membrane_models.learned.training.collocation import (
     Collocation,
     forcing_grid,
     midpoint_grid,
     uniform_points,
 )
-from membrane_models.training.config import TrainConfig
-from membrane_models.transforms import TIME_BUMP_PEAK, PhysicalModel, initial_shape_jet
+from membrane_models.learned.training.config import TrainConfig
+from membrane_models.learned.transforms import TIME_BUMP_PEAK, PhysicalModel, initial_shape_jet
+from membrane_models.problems import ForcedProblem, Problem, StringPlucked
 
 __all__ = [
     "kink_coefficients",

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from membrane_cli.arguments import UsageError
-from membrane_models.cli import parse_assignments
+from membrane_models.commands.exact import parse_assignments
 
 __all__ = ["add_evaluate", "add_export", "add_train", "train_command"]
 
@@ -82,7 +82,7 @@ def train_command(args: argparse.Namespace) -> str:
 def _run_train(args: argparse.Namespace) -> int:
     import torch
 
-    from membrane_models.training import recipe, train
+    from membrane_models.learned.training import recipe, train
 
     changes: dict[str, Any] = {"seed": args.seed, "overrides": parse_assignments(args.sets)}
     if args.iterations is not None:
@@ -97,7 +97,7 @@ def _run_train(args: argparse.Namespace) -> int:
         raise UsageError("--monitor-every must be >= 0")
     changes["monitor_every"] = args.monitor_every
     config = recipe(args.problem, args.arch, **changes)
-    from membrane_models.training import build_model
+    from membrane_models.learned.training import build_model
 
     build_model(config)  # validates the problem and its overrides before any file is written
     args.out.mkdir(parents=True, exist_ok=True)
@@ -140,7 +140,7 @@ def _exact_monitor(config: Any) -> Any:
     import numpy as np
     import torch
 
-    from membrane_models.evaluate import reference_on_grid
+    from membrane_models.artifacts.evaluate import reference_on_grid
     from membrane_models.problems import make_problem
 
     problem = make_problem(config.problem, config.overrides)
@@ -176,7 +176,7 @@ def add_export(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _run_export(args: argparse.Namespace) -> int:
-    from membrane_models.export import ParityError, export_checkpoint
+    from membrane_models.learned.export import ParityError, export_checkpoint
 
     if args.out.suffix != ".onnx" or args.out.name.endswith((".space.onnx", ".time.onnx")):
         raise UsageError(f"--out must be MODEL.onnx, got {args.out}")
@@ -214,8 +214,8 @@ def add_evaluate(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _run_evaluate(args: argparse.Namespace) -> int:
-    from membrane_models.evaluate import evaluate_model, plot_comparison
-    from membrane_models.zoo_index import resolve_model
+    from membrane_models.artifacts.evaluate import evaluate_model, plot_comparison
+    from membrane_models.artifacts.zoo_index import resolve_model
 
     manifest = resolve_model(args.model)
     report = evaluate_model(manifest)

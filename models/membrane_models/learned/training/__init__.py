@@ -10,16 +10,16 @@
 The names below are the package's public surface; the modules hold the rest.
 """
 
-from membrane_models.training.checkpoints import (
+from membrane_models.learned.training.checkpoints import (
     CHECKPOINT_FORMAT,
     load_checkpoint,
     model_from_checkpoint,
 )
-from membrane_models.training.collocation import Collocation, sample_collocation
-from membrane_models.training.config import TrainConfig, build_model
-from membrane_models.training.loop import Monitor, TrainResult, WeightAverage, train
-from membrane_models.training.losses import loss_terms, modal_term
-from membrane_models.training.recipes import PUBLISHED, RECIPES, recipe
+from membrane_models.learned.training.collocation import Collocation, sample_collocation
+from membrane_models.learned.training.config import TrainConfig, build_model
+from membrane_models.learned.training.loop import Monitor, TrainResult, WeightAverage, train
+from membrane_models.learned.training.losses import loss_terms, modal_term
+from membrane_models.learned.training.recipes import PUBLISHED, RECIPES, recipe
 
 __all__ = [
     "CHECKPOINT_FORMAT",

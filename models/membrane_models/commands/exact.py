@@ -136,7 +136,7 @@ def _run_exact(args: argparse.Namespace) -> int:
     with args.out.open("wb") as handle:
         np.savez(handle, **payload)
     if args.plot is not None:
-        from membrane_models.plotting import plot_solution  # matplotlib: the `plot` extra
+        from membrane_models.commands.plotting import plot_solution  # matplotlib: the `plot` extra
 
         plot_solution(args.plot, args.problem, arrays, u)
     shape = "x".join(str(n) for n in u.shape)

@@ -20,8 +20,8 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from membrane_models.fd import FdSolution
-from membrane_models.nonlinear_string import KirchhoffString
+from membrane_models.checks.linear_fd import FdSolution
+from membrane_models.exact.kirchhoff_carrier import KirchhoffString
 from membrane_models.problems import InvalidProblem
 
 __all__ = ["solve_kirchhoff_fd"]

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TextIO
 
 from membrane_cli.arguments import UsageError, bounded_float, bounded_int
-from membrane_models.string_shapes import FAMILIES  # numpy only: a core dependency
+from membrane_models.problems.string_shapes import FAMILIES  # numpy only: a core dependency
 
 __all__ = ["add_data"]
 
@@ -95,8 +95,8 @@ def _add_koopman_string(datasets: argparse._SubParsersAction) -> None:
 
 
 def _run_koopman_string(args: argparse.Namespace) -> int:
-    from membrane_models.koopman_data import DatasetSpec, write_datasets
-    from membrane_models.string_shapes import ShapeParameters
+    from membrane_models.data.koopman import DatasetSpec, write_datasets
+    from membrane_models.problems.string_shapes import ShapeParameters
 
     families = tuple(f.strip() for f in args.families.split(",") if f.strip())
     unknown = sorted(set(families) - set(FAMILIES))

@@ -5,7 +5,7 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-from membrane_models.manifest import Manifest, ManifestError
+from membrane_models.artifacts.manifest import Manifest, ManifestError
 
 __all__ = ["ZOO_DIR", "list_models", "resolve_model"]
 

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from membrane_models.networks import Jet, SeparableCore, grid_points
+from membrane_models.learned.networks import Jet, SeparableCore, grid_points
 from membrane_models.problems import MembraneForced, Problem, StringForced, StringPlucked
 
 __all__ = [
