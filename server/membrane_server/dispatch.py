@@ -32,9 +32,10 @@ from membrane_client.protocol import (
     ok_reply,
     preview,
 )
-from membrane_models.live import LiveError, ModalEngine
+from membrane_models.live import LiveEngine, LiveError
+from membrane_server.engines import UnknownEngine
 from membrane_server.evaluators import Evaluator, build_evaluator
-from membrane_server.live import LiveOps, SessionTable, build_engine, live_description
+from membrane_server.live import LiveOps, SessionTable, build_scene_engine, live_description
 from membrane_server.reply_cache import ReplyCache
 from membrane_server.reply_encoding import EncodedFields, encode_fields, encode_ok_reply
 from membrane_server.scene import Scene, SceneError, load_scene
@@ -75,7 +76,7 @@ class ServedScene:
         scene: Scene,
         evaluator: Evaluator,
         source: ModelSource,
-        live: ModalEngine | None = None,
+        live: LiveEngine[Any] | None = None,
     ) -> None:
         self.scene = scene
         self.evaluator = evaluator
@@ -109,8 +110,8 @@ class ServedScene:
         started = time.perf_counter()
         try:
             evaluator = build_evaluator(scene, source, threads=threads)
-            engine = None if scene.live is None else build_engine(scene, source.problem)
-        except (SceneError, LiveError) as exc:  # raised where the scene's file is not known
+            engine = None if scene.live is None else build_scene_engine(scene, source.problem)
+        except (SceneError, LiveError, UnknownEngine) as exc:  # where the file is not known
             raise scene.error(exc) from None
         logger.info(
             "scene %s: %s evaluator, %d points, model %s, built in %.2f s",

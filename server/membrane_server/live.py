@@ -39,14 +39,9 @@ from membrane_client.protocol import (
     preview,
     unpack_array,
 )
-from membrane_models.live import (
-    LiveError,
-    ModalEngine,
-    ModalState,
-    ProbeReading,
-    Start,
-    StepResult,
-)
+from membrane_models.live import LiveEngine, LiveError, ProbeReading, Start, StepResult
+from membrane_models.problems import Problem
+from membrane_server.engines import build_engine
 
 if TYPE_CHECKING:
     from membrane_server.dispatch import ServedScene
@@ -59,9 +54,10 @@ __all__ = [
     "LiveOps",
     "LiveSession",
     "SessionTable",
-    "build_engine",
+    "build_scene_engine",
     "live_description",
     "reading_fields",
+    "wire_error",
 ]
 
 DEFAULT_MAX_SESSIONS = 64
@@ -73,21 +69,14 @@ _SESSION_OVERHEAD = 4096
 _REPLY_OVERHEAD = 512 + MAX_PROBES * 160
 
 
-def build_engine(scene: Scene, problem: Any) -> ModalEngine:
-    """The live engine of a scene with a ``[live]`` table, on the scene's lattice and dt."""
+def build_scene_engine(scene: Scene, problem: Problem) -> LiveEngine[Any]:
+    """The live engine of a scene with a ``[live]`` table, by its kind, on its lattice and dt."""
     assert scene.live is not None
     settings = scene.live
-    return ModalEngine(
-        problem,
-        scene.lattice.shape,
-        scene.dt,
-        damping=settings.damping,
-        hold=settings.hold,
-        modes=settings.modes,
-    )
+    return build_engine(settings.engine, problem, scene.lattice.shape, scene.dt, settings.options)
 
 
-def live_description(engine: ModalEngine) -> dict[str, Any]:
+def live_description(engine: LiveEngine[Any]) -> dict[str, Any]:
     """``describe``'s ``live`` field: the engine's settings and bounds (its own ``describe``),
     the per-step limits, the memory a session holds at most, and the units of a step."""
     return {
@@ -104,12 +93,11 @@ def live_description(engine: ModalEngine) -> dict[str, Any]:
     }
 
 
-def session_bytes(engine: ModalEngine) -> int:
-    """The most one session holds: its start and current states (the current one with the
-    applied footprints, within the step budget), its stored open and step replies."""
+def session_bytes(engine: LiveEngine[Any]) -> int:
+    """The most one session holds: its start and current states (each at most the engine's
+    ``state_bytes``), its stored open and step replies."""
     frame = 4 * math.prod(engine.lattice_shape)
-    start = 3 * 8 * math.prod(engine.modes.box)
-    return engine.state_bytes + start + 2 * _REPLY_OVERHEAD + frame + _SESSION_OVERHEAD
+    return 2 * engine.state_bytes + 2 * _REPLY_OVERHEAD + frame + _SESSION_OVERHEAD
 
 
 def reading_fields(reading: ProbeReading) -> dict[str, Any]:
@@ -144,21 +132,22 @@ class LiveSession:
     replies."""
 
     served: ServedScene
-    start: Start[ModalState]
-    state: ModalState
+    start: Start[Any]
+    state: Any  # the engine's own state type (immutable)
     opened: Sent  # the open (a re-sent open gets its reply again)
     owner: str = ""  # the peer that opened it ("key:..." binds it to that CurveZMQ key)
+    k: int = 0  # steps taken (counted here: an engine's state type is its own)
     last_step: Sent | None = None  # the latest step
     readings: tuple[ProbeReading, ...] = ()
     last_used: float = field(default=0.0)
 
     @property
-    def k(self) -> int:
-        """Steps taken."""
-        return self.state.step
+    def t(self) -> float:
+        """The session's time, k dt."""
+        return self.k * self.engine.dt
 
     @property
-    def engine(self) -> ModalEngine:
+    def engine(self) -> LiveEngine[Any]:
         engine = self.served.live
         assert engine is not None  # a session opens on live scenes only
         return engine
@@ -167,11 +156,11 @@ class LiveSession:
         """A key-bound session is its key's alone; without keys the id is the credential."""
         return not self.owner.startswith("key:") or peer == self.owner
 
-    def apply(self, result: StepResult[ModalState]) -> None:
-        self.state, self.readings = result.state, result.probes
+    def apply(self, result: StepResult[Any]) -> None:
+        self.state, self.readings, self.k = result.state, result.probes, self.k + 1
 
     def reset(self) -> None:
-        self.state, self.readings, self.last_step = self.start.state, (), None
+        self.state, self.readings, self.last_step, self.k = self.start.state, (), None, 0
 
 
 class SessionTable:
@@ -357,12 +346,14 @@ class LiveOps:
                 f"the session has taken {session.k} steps: the next step is k = {session.k}, "
                 f"this one asked for k = {preview(k)}",
             )
+        engine = session.engine
+        _require_inputs(engine, loads=request.loads, probes=request.probes)
         try:
-            result = session.engine.step(
+            result = engine.step(
                 session.state, request.loads or (), request.probes or (), frame=request.frame
             )
         except LiveError as exc:
-            raise RequestError(ErrorCode.BAD_REQUEST, str(exc)) from None
+            raise wire_error(exc) from None
         session.apply(result)
         self.table.counts["steps"] += 1
         fields = self._frame_fields(request, session, result.frame)
@@ -398,11 +389,10 @@ class LiveOps:
     def _frame_fields(
         request: Request, session: LiveSession, frame: np.ndarray | None
     ) -> dict[str, Any]:
-        state = session.state
         fields: dict[str, Any] = {
             "session": request.session,
-            "k": state.step,
-            "t": state.time,
+            "k": session.k,
+            "t": session.t,
             "revision": session.served.revision,
             "probes": [reading_fields(reading) for reading in session.readings],
         }
@@ -416,7 +406,24 @@ def _session_id(request: Request) -> str:
     return request.session
 
 
-def _start(engine: ModalEngine, initial: dict[str, Any] | None) -> Start[ModalState]:
+def wire_error(exc: LiveError, what: str = "") -> RequestError:
+    """The one place an engine's refusal becomes a wire error: ``bad_request`` with the
+    engine's message (its errors quote client values bounded; ``error_reply`` caps the length)."""
+    return RequestError(ErrorCode.BAD_REQUEST, f"{what}{exc}")
+
+
+def _require_inputs(engine: LiveEngine[Any], **given: object) -> None:
+    """Refuse what the engine does not take (``LiveEngine.inputs``) before it reaches it."""
+    for name, value in given.items():
+        if value and name not in engine.inputs:
+            takes = ", ".join(sorted(engine.inputs)) or "nothing"
+            raise RequestError(
+                ErrorCode.BAD_REQUEST, f"this scene's engine takes no {name} (it takes {takes})"
+            )
+
+
+def _start(engine: LiveEngine[Any], initial: dict[str, Any] | None) -> Start[Any]:
+    _require_inputs(engine, initial=initial)
     shapes = {}
     for name, packed in (initial or {}).items():
         try:
@@ -426,4 +433,4 @@ def _start(engine: ModalEngine, initial: dict[str, Any] | None) -> Start[ModalSt
     try:
         return engine.start(shapes.get("displacement"), shapes.get("velocity"))
     except LiveError as exc:
-        raise RequestError(ErrorCode.BAD_REQUEST, f"initial: {exc}") from None
+        raise wire_error(exc, "initial: ") from None

@@ -175,12 +175,22 @@ class Placement(_Strict):
     axis: Literal["x", "y", "z"] = "z"
 
 
-class LiveSettings(_Strict):
-    """A live scene's engine: sessions step it with loads and probes (docs/LIVE.md)."""
+class LiveSettings(BaseModel):
+    """A live scene's engine: sessions step it with loads and probes (docs/LIVE.md).
 
-    damping: float = Field(default=0.0, ge=0.0, lt=1.0)  # modal damping ratio zeta
-    hold: Literal["zoh", "foh"] = "zoh"  # loads held over a step, or ramped from the last
-    modes: int | None = Field(default=None, ge=1, le=1024)  # per axis (default: the lattice's)
+    ``engine`` names a kind registered in the ``membrane.engines`` entry-point group (built in:
+    ``modal``); every other key is that engine's option, checked by the engine when the scene
+    is built (``options``), so a new kind brings its settings without a change here.
+    """
+
+    model_config = ConfigDict(extra="allow", frozen=True, allow_inf_nan=False, strict=True)
+
+    engine: str = Field(default="modal", pattern=_NAME_PATTERN)
+
+    @property
+    def options(self) -> dict[str, Any]:
+        """The engine's options: the table's keys but ``engine``."""
+        return dict(self.model_extra or {})
 
 
 class Scene(_Strict):

@@ -16,8 +16,10 @@ from membrane_models.live.errors import (
     InvalidState,
     LiveError,
 )
+from membrane_models.live.factory import build_modal_engine
 from membrane_models.live.film import film_frames, film_load
 from membrane_models.live.interface import (
+    ENGINE_INPUTS,
     Hold,
     LiveEngine,
     Load,
@@ -28,6 +30,7 @@ from membrane_models.live.interface import (
 )
 
 __all__ = [
+    "ENGINE_INPUTS",
     "Hold",
     "InvalidEngineSettings",
     "InvalidLoad",
@@ -43,6 +46,7 @@ __all__ = [
     "ProbeReading",
     "Start",
     "StepResult",
+    "build_modal_engine",
     "film_frames",
     "film_load",
 ]

@@ -62,6 +62,7 @@ from membrane_models.live.inputs import (
     parse_probes,
 )
 from membrane_models.live.interface import (
+    ENGINE_INPUTS,
     Hold,
     Load,
     LoadLike,
@@ -198,6 +199,11 @@ class ModalEngine:
         return self._dt
 
     @property
+    def inputs(self) -> frozenset[str]:
+        """Loads, probes and initial shapes: everything the interface offers."""
+        return ENGINE_INPUTS
+
+    @property
     def min_radius(self) -> float:
         """The smallest footprint radius the static correction carries (0: a point, string)."""
         return _smallest_radius(self.max_reach) if self.residual.enabled else 0.0
@@ -327,6 +333,8 @@ class ModalEngine:
     def describe(self) -> dict[str, object]:
         """The engine's settings and sizes, as plain data."""
         return {
+            "engine": "modal",
+            "inputs": sorted(self.inputs),
             "problem": self.problem.name,
             "lattice": list(self._lattice),
             "dt": self._dt,

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
+    "ENGINE_INPUTS",
     "Hold",
     "LiveEngine",
     "Load",
@@ -35,6 +36,8 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 Hold = Literal["zoh", "foh"]
+# What a live engine may take: loads and probes per step, initial shapes at open.
+ENGINE_INPUTS = frozenset({"loads", "probes", "initial"})
 StateT = TypeVar("StateT")
 
 
@@ -137,6 +140,19 @@ class LiveEngine(Protocol[StateT]):
     @property
     def dt(self) -> float:
         """The step, in problem time units."""
+
+    @property
+    def inputs(self) -> frozenset[str]:
+        """What a step or an open takes: some of ``ENGINE_INPUTS`` ("loads", "probes",
+        "initial"); the server refuses the others before they reach the engine."""
+
+    @property
+    def state_bytes(self) -> int:
+        """The most one state of this engine holds, whatever it is stepped with."""
+
+    def describe(self) -> dict[str, object]:
+        """What ``describe``'s ``live`` map says of the engine: its kind, settings and bounds
+        (plain data: numbers, strings, lists)."""
 
     def start(
         self, displacement: ArrayLike | None = None, velocity: ArrayLike | None = None
