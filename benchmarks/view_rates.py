@@ -58,8 +58,9 @@ def main() -> int:
             browser = playwright.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
             for scene in wanted:
                 bridge = BridgeThread(BridgeConfig(connect=server.address, scene=scene))
-                page = browser.new_page(viewport={"width": 1100, "height": 760})
-                page.goto(bridge.url + ("?renderer=webgl" if args.renderer == "webgl" else ""))
+                # bypass_csp: the page's policy forbids the eval wait_for_function relies on
+                page = browser.new_page(viewport={"width": 1100, "height": 760}, bypass_csp=True)
+                page.goto(bridge.url + ("&renderer=webgl" if args.renderer == "webgl" else ""))
                 page.wait_for_function("window.membraneView.framesDrawn > 10", timeout=30000)
                 if scene == "membrane-live":
                     page.locator("#depth").fill("0.5")

@@ -17,6 +17,7 @@ with Client("tcp://127.0.0.1:5555", timeout=1.0) as client:
 from membrane_client.client import DEFAULT_ADDRESS, Client
 from membrane_client.errors import MembraneError, ProtocolError, ServerError, Timeout, UserError
 from membrane_client.frame import Frame, SceneInfo
+from membrane_client.live_limits import InvalidInput, LiveLimits
 from membrane_client.protocol import PROTOCOL_VERSION, ErrorCode
 from membrane_client.session import LiveFrame, Load, Probe, ProbeReading, Session
 
@@ -26,7 +27,9 @@ __all__ = [
     "Client",
     "ErrorCode",
     "Frame",
+    "InvalidInput",
     "LiveFrame",
+    "LiveLimits",
     "Load",
     "MembraneError",
     "Probe",

@@ -26,6 +26,8 @@ def _run(argv: list[str]) -> int:
         (["view", "--fps", "0"], "--fps"),
         (["view", "--speed", "nan"], "--speed"),
         (["view", "--host", "not-an-ip"], "--host"),
+        (["view", "--max-connections", "0"], "--max-connections"),
+        (["view", "--max-connections", "65"], "--max-connections"),
         (["animate", "--scene", "membrane", "--out", "clip.txt"], ".gif or .mp4"),
         (["animate", "--scene", "membrane", "--out", "/no/such/dir/a.gif"], "no such directory"),
         (["animate", "--out", "a.gif"], "--scene"),
@@ -66,6 +68,23 @@ def test_a_port_in_use_is_one_line_and_exit_2(capsys: pytest.CaptureFixture[str]
     assert f"cannot serve on 127.0.0.1:{port}" in err[-1]
 
 
+@pytest.mark.parametrize("token", ["short", "x" * 257, "has spaces in it, sixteen+", "é" * 20])
+def test_a_bad_token_from_the_environment_is_one_line(
+    token: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import socket
+
+    monkeypatch.setenv("MEMBRANE_VIEW_TOKEN", token)
+    with socket.socket() as taken:  # were the token taken, the port in use still ends the run
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = str(taken.getsockname()[1])
+        assert _run(["view", "--port", port, "--connect", "tcp://127.0.0.1:9"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "$MEMBRANE_VIEW_TOKEN must be 16 to 256" in err[0], err
+    assert token not in err[0]
+
+
 def _frames(path: Path) -> int:
     from PIL import Image
 
@@ -90,22 +109,30 @@ def test_animate_a_poke_on_a_live_scene_to_gif(live_server: Server, tmp_path: Pa
 def test_membrane_view_serves_the_page_from_the_command(
     membrane_server: Server, tmp_path: Path
 ) -> None:
+    import os
     import re
     import subprocess
     import sys
+    import urllib.error
     import urllib.request
 
     command = [sys.executable, "-c", "import sys; from membrane_cli.dispatcher import main; "
                "sys.exit(main(sys.argv[1:]))", "view", "--port", "0", "--connect",
                membrane_server.address, "--scene", "membrane"]  # fmt: skip
-    process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    token = "a-fixed-token_0123456789"
+    env = {**os.environ, "MEMBRANE_VIEW_TOKEN": token}
+    process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True, env=env)
     try:
         assert process.stderr is not None
         line = process.stderr.readline()
-        match = re.search(r"http://127\.0\.0\.1:(\d+)/", line)
-        assert match and int(match.group(1)) > 0, line
-        with urllib.request.urlopen(match.group(0), timeout=10) as reply:
+        match = re.search(r"http://127\.0\.0\.1:(\d+)/\?token=(\S+) ", line)
+        assert match and int(match.group(1)) > 0 and match.group(2) == token, line
+        with urllib.request.urlopen(match.group(0).strip(), timeout=10) as reply:
             assert '<canvas id="surface"' in reply.read().decode()
+        without = match.group(0).split("?")[0]
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(without, timeout=10)
+        assert refused.value.code == 403
     finally:
         process.terminate()
         process.wait(timeout=20)

@@ -15,16 +15,25 @@ __all__ = ["BridgeFactory", "BridgeThread"]
 
 
 class BridgeThread:
-    """`membrane view`'s app served from a background thread; ``url`` is its page."""
+    """`membrane view`'s app served from a background thread.
+
+    ``url`` is its page with the token (add a query with ``&``), ``base`` its address without
+    one, ``ws_url`` its WebSocket with the token.
+    """
 
     def __init__(self, config: BridgeConfig):
+        self.config = config
         self.loop = asyncio.new_event_loop()
         self.runner = aiohttp_web.AppRunner(make_app(config), shutdown_timeout=1.0)
         self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self.thread.start()
         asyncio.run_coroutine_threadsafe(self._start(), self.loop).result(timeout=30)
         host, port = self.runner.addresses[0][:2]
-        self.url = f"http://{host}:{port}/"
+        self.host, self.port = str(host), int(port)
+        self.base = f"http://{host}:{port}/"
+        self.token = config.token
+        self.url = f"{self.base}?token={self.token}"
+        self.ws_url = f"ws://{host}:{port}/ws?token={self.token}"
 
     async def _start(self) -> None:
         await self.runner.setup()

@@ -1,8 +1,8 @@
 """The bridge: a membrane client on one side, a web page on the other (aiohttp).
 
 ``GET /`` serves the page (static/, package data), ``GET /ws`` a WebSocket. Per WebSocket the
-bridge holds one ``Client`` (used from one worker thread: the client blocks, the event loop must
-not) and pushes:
+bridge holds one ``Client`` (used from the bridge's worker threads, one call at a time: the
+client blocks, the event loop must not) and pushes:
 
 - ``{"type": "scene", ...}`` (JSON text) once described: shape, extent, dt, live or film;
 - binary frames (``wire.encode_frame``: a 32-byte header and float32 z) at up to ``fps`` per
@@ -16,7 +16,16 @@ not) and pushes:
 
 The page sends JSON text: ``{"type": "press", "at": [x, y], "depth": d, "radius": r}`` (lattice
 coordinates, problem units) while the pointer is down, ``{"type": "release"}`` when it is up,
-and ``{"type": "reset"}``.
+and ``{"type": "reset"}``. Each is checked (``page_input``: size, nesting, the scene's bounds
+through ``LiveLimits``, the depth within the slider's range); a bad one is answered with
+``{"type": "error", "source": "page", ...}`` and changes nothing, the session kept.
+
+Who may talk to it (``guard``): the page and its WebSocket are the user's session on the
+tissue, and any web page the user visits can send requests to 127.0.0.1. So every request must
+name the bridge itself in ``Host`` (a DNS-rebound name does not), an ``Origin`` must be the
+bridge's own, the page and the WebSocket need the start-up token (``?token=``, as Jupyter's),
+and at most ``max_connections`` WebSockets are held at once, all served by one small thread
+pool: the rest get 403 or 503 before any session is opened.
 """
 
 from __future__ import annotations
@@ -25,11 +34,11 @@ import asyncio
 import contextlib
 import json
 import logging
-import math
 import time
 from collections import deque
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import wait as wait_for
 from dataclasses import dataclass, field
 from functools import partial
 from importlib import resources
@@ -37,14 +46,18 @@ from pathlib import Path
 from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
-from aiohttp import WSMsgType, web
+from aiohttp import WSCloseCode, WSMsgType, web
 
 from membrane_client.client import Client
 from membrane_client.curve import SocketOptions
-from membrane_client.errors import Timeout
+from membrane_client.errors import ServerError, Timeout
 from membrane_client.frame import SceneInfo
+from membrane_client.live_limits import LiveLimits
+from membrane_client.protocol import ErrorCode
 from membrane_client.session import Probe, Session
 from membrane_errors import MembraneError
+from membrane_view.guard import guard, new_token, security_headers
+from membrane_view.page_input import PageInputError, error_message, parse_page_message
 from membrane_view.wire import FLAG_CONTACT, FLAG_LIVE, encode_frame
 
 __all__ = ["BridgeConfig", "make_app", "static_dir"]
@@ -54,6 +67,11 @@ T = TypeVar("T")
 
 RETRY_S = 1.0
 STATS_EVERY_S = 1.0
+MAX_CONNECTIONS = 8
+WORKERS = 4
+# Bytes of one message from the page before aiohttp closes the socket (1009); under it, a
+# message over page_input.MAX_MESSAGE_CHARS is answered with an error and the socket kept.
+MAX_FRAME_BYTES = 1 << 16
 
 
 def static_dir() -> Path:
@@ -69,6 +87,15 @@ class BridgeConfig:
     speed: float = 1.0  # simulation seconds per wall-clock second
     fps: float = 60.0  # frames pushed per second at most
     socket_options: SocketOptions | None = None
+    token: str = field(default_factory=new_token)  # needed by the page and the WebSocket
+    max_connections: int = MAX_CONNECTIONS  # WebSockets held at once; more get 503
+    workers: int = WORKERS  # threads that make the client's (blocking) calls, for all pages
+
+    def __post_init__(self) -> None:
+        if len(self.token) < 16:
+            raise ValueError("the token must be at least 16 characters")
+        if self.max_connections < 1 or self.workers < 1:
+            raise ValueError("max_connections and workers must be >= 1")
 
 
 @dataclass
@@ -123,14 +150,36 @@ def scene_message(info: SceneInfo, config: BridgeConfig) -> dict[str, Any]:
         "live": live,
         "speed": config.speed,
         "fps": config.fps,
-        # a probe's depth and radius in problem units: the slider's range
-        "depth_max": 0.02 * extent,
+        # a probe's depth and radius in problem units: the slider's range (a press deeper than
+        # depth_max is refused)
+        "depth_max": depth_max(info),
         "radius": 0.05 * extent,
         "min_radius": float(info.live.get("min_radius", 0.0)) if live else 0.0,
         # A point list (shape (n,)) is drawn where its points are: a rope along their x, a
         # membrane's points as a scatter. Grids need none (their shape says it all).
         "points": points.tolist() if len(info.shape) == 1 else None,
     }
+
+
+def _extent(info: SceneInfo) -> float:
+    points = np.asarray(info.points, dtype=np.float64)
+    return float(np.max(points.max(axis=0) - points.min(axis=0))) if points.size else 1.0
+
+
+def live_limits(info: SceneInfo) -> LiveLimits | None:
+    """A live scene's bounds on a step (None on a film)."""
+    if not info.live:
+        return None
+    dims = int(info.points.shape[1]) if info.points.ndim == 2 else 1
+    return LiveLimits.from_live(info.live, dims)
+
+
+def depth_max(info: SceneInfo) -> float:
+    """The page slider's deepest press: 2 % of the lattice's extent (problem units), or the
+    scene's own ``max_depth`` if that is less. A press deeper than it is refused."""
+    slider = 0.02 * _extent(info)
+    limits = live_limits(info)
+    return slider if limits is None else min(slider, limits.max_depth)
 
 
 class Got(NamedTuple):
@@ -144,25 +193,67 @@ class Got(NamedTuple):
     received: float
 
 
-class Player:
-    """One page's connection to the server: films played, live scenes stepped."""
+class StepRefused(MembraneError):
+    """The server refused a step's probe (``bad_request``): the page's press is dropped, the
+    session kept (reopening it would not make the probe valid)."""
 
-    def __init__(self, config: BridgeConfig, ws: web.WebSocketResponse):
-        self.config, self.ws = config, ws
+
+class Player:
+    """One page's connection to the server: films played, live scenes stepped.
+
+    Its client calls go to the bridge's shared worker threads one at a time (``call`` waits
+    for the previous one, even when cancelled): a Client is not thread-safe.
+    """
+
+    def __init__(
+        self, config: BridgeConfig, ws: web.WebSocketResponse, executor: ThreadPoolExecutor
+    ):
+        self.config, self.ws, self.executor = config, ws, executor
         self.pointer = Pointer()
         self.counters = Counters()
-        self.executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="membrane-view")
         self.client: Client | None = None
         self.session: Session | None = None
         self.info: SceneInfo | None = None
+        self.limits: LiveLimits | None = None
+        self.depth_max = 0.0
         self.last_bridge_us = 0.0
         self.skipped = 0  # steps of wall-clock time not taken (dropped, or before a reset)
+        self.inflight: Future[Any] | None = None
+        self.sending = asyncio.Lock()  # the play loop and the receive loop both send
 
     async def call(self, fn: Callable[[], T]) -> T:
-        return await asyncio.get_running_loop().run_in_executor(self.executor, fn)
+        previous = self.inflight
+        if previous is not None and not previous.done():  # its awaiter was cancelled
+            await asyncio.wait([asyncio.wrap_future(previous)])
+        future = self.executor.submit(fn)
+        self.inflight = future
+        return await asyncio.wrap_future(future)
 
     async def send_json(self, message: dict[str, Any]) -> None:
-        await self.ws.send_str(json.dumps(message, allow_nan=False, default=_jsonable))
+        text = json.dumps(message, allow_nan=False, default=_jsonable)
+        async with self.sending:
+            await self.ws.send_str(text)
+
+    async def on_text(self, text: str) -> None:
+        """A message from the page: applied to the pointer, or refused with an error message
+        (the pointer and the session unchanged, the socket kept open)."""
+        try:
+            no_press = (
+                "press needs a live scene (this one plays a film)"
+                if self.info is not None
+                else "no scene yet: press once the scene message has come"
+            )
+            message = parse_page_message(text, self.limits, self.depth_max, no_press)
+        except PageInputError as exc:
+            await self.send_json(error_message(f"page message refused: {exc}", source="page"))
+            return
+        if message.probe is not None:
+            probe = message.probe
+            self.pointer.at, self.pointer.depth, self.pointer.radius = probe
+        elif message.kind == "release":
+            self.pointer.at = None
+        elif message.kind == "reset":
+            self.pointer.reset = True
 
     def _connect(self) -> SceneInfo:
         if self.client is None:
@@ -176,6 +267,20 @@ class Player:
         if info.live:
             self.session = self.client.session(self.config.scene)
         return info
+
+    def _described(self, info: SceneInfo) -> None:
+        """The scene's bounds for the page's presses; a press from before is dropped (it was
+        checked against another description)."""
+        self.info = info
+        self.limits = live_limits(info)
+        self.depth_max = depth_max(info)
+        self.pointer.at = None
+
+    def _close_after(self, pending: Future[Any] | None) -> None:
+        """In a worker: wait for the call still running, then close (never two at once)."""
+        if pending is not None:
+            wait_for([pending])
+        self._close()
 
     def _close(self) -> None:
         if self.session is not None:
@@ -191,25 +296,22 @@ class Player:
         try:
             while not self.ws.closed:
                 try:
-                    self.info = await self.call(self._connect)
+                    info = await self.call(self._connect)
                 except MembraneError as exc:
-                    await self.send_json({"type": "error", "message": _explain(exc, self.config)})
+                    await self.send_json(error_message(_explain(exc, self.config)))
                     await self.call(self._close)
                     await asyncio.sleep(RETRY_S)
                     continue
-                await self.send_json(scene_message(self.info, self.config))
-                await self.send_json(
-                    {
-                        "type": "status",
-                        "message": f"connected to {self.config.connect}, scene {self.info.name}",
-                    }
-                )
+                self._described(info)
+                await self.send_json(scene_message(info, self.config))
+                where = f"connected to {self.config.connect}, scene {_short(info.name)}"
+                await self.send_json({"type": "status", "message": where})
                 try:
-                    await self.play(self.info)
+                    await self.play(info)
                 except MembraneError as exc:
                     if self.ws.closed:
                         break
-                    await self.send_json({"type": "error", "message": _explain(exc, self.config)})
+                    await self.send_json(error_message(_explain(exc, self.config)))
                     await self.call(self._close)
                     await asyncio.sleep(RETRY_S)
         except ConnectionResetError:  # the page went away while a message was being sent
@@ -217,11 +319,16 @@ class Player:
         except Exception as exc:  # a bug: logged with its traceback, and shown on the page
             logger.exception("the bridge failed")
             with contextlib.suppress(Exception):
-                await self.send_json({"type": "error", "message": f"the bridge failed: {exc!r}"})
+                await self.send_json(error_message(f"the bridge failed: {exc!r}"))
             raise
         finally:
-            await self.call(self._close)
-            self.executor.shutdown(wait=False)
+            # Submitted at once, so the session is closed even if this task is cancelled again.
+            try:
+                closing = self.executor.submit(self._close_after, self.inflight)
+            except RuntimeError:  # the workers are stopped: the bridge is exiting
+                logger.debug("a session left open at exit (the server expires it)")
+            else:
+                await asyncio.shield(asyncio.wrap_future(closing))
 
     async def play(self, info: SceneInfo) -> None:
         period = 1.0 / self.config.fps
@@ -232,7 +339,12 @@ class Player:
             now = time.perf_counter()
             sim_elapsed = (now - started) * self.config.speed
             if info.live:
-                got = await self.call(partial(self._steps, info, sim_elapsed, 0.8 * period))
+                try:
+                    got = await self.call(partial(self._steps, info, sim_elapsed, 0.8 * period))
+                except StepRefused as exc:
+                    self.pointer.at = None
+                    await self.send_json(error_message(str(exc), source="page"))
+                    got = None
             else:
                 got = await self.call(partial(self._film, info, sim_elapsed))
             if got is not None:
@@ -284,10 +396,16 @@ class Player:
         deadline = time.perf_counter() + budget_s
         probes = self.pointer.probes()
         taken = 1
-        while taken < due and time.perf_counter() < deadline:
-            session.step(probes=probes, frame=False)
-            taken += 1
-        frame = session.step(probes=probes, frame=True)
+        try:
+            while taken < due and time.perf_counter() < deadline:
+                session.step(probes=probes, frame=False)
+                taken += 1
+            frame = session.step(probes=probes, frame=True)
+        except ServerError as exc:
+            if exc.code != ErrorCode.BAD_REQUEST or not probes:
+                raise
+            self.skipped += due - taken  # the refused step's wall-clock time is not taken
+            raise StepRefused(f"the server refused the press: {exc.message}") from None
         received = time.perf_counter()
         self.counters.steps += taken
         self.counters.dropped_steps += due - taken
@@ -308,23 +426,9 @@ class Player:
             "uptime_s": stats.get("uptime_s"),
         }
 
-    def on_message(self, text: str) -> None:
-        """A pointer message from the page (bad ones are ignored: the page is ours)."""
-        try:
-            message = json.loads(text)
-            kind = message.get("type")
-            if kind == "press":
-                at = tuple(float(v) for v in message["at"])
-                depth, radius = float(message["depth"]), float(message["radius"])
-                if not all(map(math.isfinite, (*at, depth, radius))) or depth < 0 or radius <= 0:
-                    raise ValueError("non-finite or negative probe")
-                self.pointer.at, self.pointer.depth, self.pointer.radius = at, depth, radius
-            elif kind == "release":
-                self.pointer.at = None
-            elif kind == "reset":
-                self.pointer.reset = True
-        except (ValueError, KeyError, TypeError, AttributeError) as exc:
-            logger.debug("ignored a message from the page: %r (%s)", text[:200], exc)
+
+def _short(text: str, limit: int = 64) -> str:
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 def _explain(exc: MembraneError, config: BridgeConfig) -> str:
@@ -342,23 +446,50 @@ def _jsonable(value: Any) -> Any:
     return None
 
 
-async def _websocket(request: web.Request) -> web.WebSocketResponse:
-    # No permessage-deflate: float32 noise hardly compresses, and deflating 40 kB takes ms.
-    ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=1 << 16, compress=False)
-    await ws.prepare(request)
-    player = Player(request.app[CONFIG], ws)
-    task = asyncio.create_task(player.run())
+@dataclass
+class Pages:
+    """The WebSockets held now, and the threads that serve them all."""
+
+    executor: ThreadPoolExecutor
+    open: int = 0
+    sockets: set[web.WebSocketResponse] = field(default_factory=set)
+
+
+async def _websocket(request: web.Request) -> web.StreamResponse:
+    config, pages = request.app[CONFIG], request.app[PAGES]
+    if pages.open >= config.max_connections:
+        return web.Response(
+            status=503,
+            text=f"503: this bridge serves at most {config.max_connections} pages at once "
+            "(--max-connections); close one and reload\n",
+        )
+    pages.open += 1
     try:
-        async for message in ws:
-            if message.type == WSMsgType.TEXT:
-                player.on_message(message.data)
-            elif message.type == WSMsgType.ERROR:
-                break
+        # No permessage-deflate: float32 noise hardly compresses, and deflating 40 kB takes ms.
+        ws = web.WebSocketResponse(heartbeat=30.0, max_msg_size=MAX_FRAME_BYTES, compress=False)
+        await ws.prepare(request)
+        pages.sockets.add(ws)
+        player = Player(config, ws, pages.executor)
+        task = asyncio.create_task(player.run())
+        try:
+            async for message in ws:
+                if message.type == WSMsgType.TEXT:
+                    await player.on_text(message.data)
+                elif message.type == WSMsgType.BINARY:
+                    refused = "page message refused: the page sends JSON text, not binary"
+                    await player.send_json(error_message(refused, source="page"))
+                elif message.type == WSMsgType.ERROR:
+                    break
+        except ConnectionResetError:  # the page went away while it was being answered
+            pass
+        finally:
+            pages.sockets.discard(ws)
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task  # a failure was logged by Player.run
+        return ws
     finally:
-        task.cancel()
-        with contextlib.suppress(asyncio.CancelledError, Exception):
-            await task  # a failure was logged by Player.run
-    return ws
+        pages.open -= 1
 
 
 async def _index(request: web.Request) -> web.FileResponse:
@@ -366,13 +497,31 @@ async def _index(request: web.Request) -> web.FileResponse:
 
 
 CONFIG: web.AppKey[BridgeConfig] = web.AppKey("config", BridgeConfig)
+PAGES: web.AppKey[Pages] = web.AppKey("pages", Pages)
 
 
 def make_app(config: BridgeConfig) -> web.Application:
-    """The aiohttp application: the page, its modules, the WebSocket."""
-    app = web.Application()
+    """The aiohttp application: the page, its modules, the WebSocket, behind the guard."""
+    app = web.Application(middlewares=[guard(config.token)])
     app[CONFIG] = config
+    app[PAGES] = Pages(ThreadPoolExecutor(config.workers, thread_name_prefix="membrane-view"))
     app.router.add_get("/", _index)
     app.router.add_get("/ws", _websocket)
     app.router.add_static("/static/", static_dir(), show_index=False)
+    app.on_response_prepare.append(security_headers)
+    app.on_shutdown.append(_close_pages)
+    app.on_cleanup.append(_stop_workers)
     return app
+
+
+async def _close_pages(app: web.Application) -> None:
+    """At exit: tell each page the bridge is going away (1001) rather than drop it."""
+    sockets = list(app[PAGES].sockets)
+    await asyncio.gather(
+        *(ws.close(code=WSCloseCode.GOING_AWAY, message=b"bridge stopping") for ws in sockets),
+        return_exceptions=True,
+    )
+
+
+async def _stop_workers(app: web.Application) -> None:
+    app[PAGES].executor.shutdown(wait=False)  # the sessions' closes still queued run

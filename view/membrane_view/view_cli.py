@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
+import os
 import re
 import sys
 from pathlib import Path
@@ -20,7 +21,10 @@ __all__ = ["add_animate", "add_view"]
 
 POSITIVE = bounded_float(0.0, exclusive=True)
 PORT = bounded_int(0, 65535, why="a TCP port")
+CONNECTIONS = bounded_int(1, 64, why="pages held at once, each with its own session")
 EXTRA_HINT = "pip install 'membrane-tissue[view]'"
+TOKEN_ENV = "MEMBRANE_VIEW_TOKEN"  # a fixed token: a bookmarked address survives a restart
+TOKEN_CHARS = re.compile(r"[A-Za-z0-9_.~-]{16,256}")
 
 
 def add_view(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -32,7 +36,10 @@ def add_view(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
             "Serve a local web page that shows a scene: a film scene plays at its dt, a live "
             "scene is stepped at one step per dt of wall-clock time (times --speed) and a "
             "pointer press on the page drives a probe (depth from a slider). The page talks to "
-            "this bridge over a WebSocket; the bridge is a membrane client (docs/VIEW.md)."
+            "this bridge over a WebSocket; the bridge is a membrane client (docs/VIEW.md). "
+            "Only its own address is answered (Host and Origin checked), and the page needs "
+            "the token in the address printed at start (a new one each run, or "
+            f"${TOKEN_ENV}: 16 to 256 URL-safe characters)."
         ),
     )
     add_connection_arguments(parser)
@@ -63,6 +70,14 @@ def add_view(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         default=60.0,
         metavar="N",
         help="frames pushed to the page per second at most (default 60)",
+    )
+    parser.add_argument(
+        "--max-connections",
+        type=CONNECTIONS,
+        default=8,
+        metavar="N",
+        help="pages (WebSockets) served at once, each with its own session; more get 503 "
+        "(default 8)",
     )
     parser.set_defaults(handler=_run_view)
 
@@ -114,10 +129,14 @@ def _run_view(args: argparse.Namespace) -> int:
         ipaddress.ip_address(args.host)
     except ValueError:
         raise UsageError(f"--host must be an IP address, got {args.host!r}") from None
+    token = os.environ.get(TOKEN_ENV)
+    if token is not None and not TOKEN_CHARS.fullmatch(token):
+        raise UsageError(f"${TOKEN_ENV} must be 16 to 256 URL-safe characters (A-Z a-z 0-9 _.~-)")
     try:
         from aiohttp import web
 
         from membrane_view.bridge import BridgeConfig, make_app
+        from membrane_view.guard import new_token
     except ModuleNotFoundError as exc:
         raise _needs_extra(exc) from None
     config = BridgeConfig(
@@ -127,23 +146,28 @@ def _run_view(args: argparse.Namespace) -> int:
         speed=args.speed,
         fps=args.fps,
         socket_options=curve_options(args),
+        token=token or new_token(),
+        max_connections=args.max_connections,
     )
     try:
         web.run_app(
             make_app(config),
             host=args.host,
             port=args.port,
-            print=lambda text: _announce(text, args.connect),
+            print=lambda text: _announce(text, args.connect, config.token),
         )
     except OSError as exc:
         raise UsageError(f"cannot serve on {args.host}:{args.port}: {exc.strerror}") from None
     return 0
 
 
-def _announce(text: str, connect: str) -> None:
-    """aiohttp's "Running on URL" as one line (with the port a --port 0 picked)."""
-    urls = re.findall(r"http://\S+", text)
-    where = ", ".join(url if url.endswith("/") else url + "/" for url in urls) or text.strip()
+def _announce(text: str, connect: str, token: str) -> None:
+    """aiohttp's "Running on URL" as one line (with the port a --port 0 picked), each address
+    with the token the page needs, as Jupyter prints it."""
+    urls = [url if url.endswith("/") else url + "/" for url in re.findall(r"http://\S+", text)]
+    # On every interface: the loopback address is one the Host check accepts (0.0.0.0 is not).
+    urls = [url.replace("//0.0.0.0:", "//127.0.0.1:") for url in urls]
+    where = ", ".join(f"{url}?token={token}" for url in urls) or text.strip()
     print(f"membrane view: {where} (server {connect}); Ctrl-C stops", file=sys.stderr, flush=True)
 
 

@@ -10,10 +10,14 @@ const forcePlot = new ForcePlot($("force-plot"));
 const state = {
   scene: null, renderer: null, frame: null, fresh: false, pressed: null,
   framesReceived: 0, framesDrawn: 0, draws: 0, renderFps: 0, frameFps: 0,
-  force: 0, errors: [], stats: null, connected: false, rendererName: "",
+  force: 0, errors: [], refused: [], stats: null, connected: false, rendererName: "",
+  connects: 0,
 };
 // Canvas 2D by default (works without a GPU); ?renderer=webgl asks for the shaded 3-D surface.
-const wantWebGL = new URLSearchParams(window.location.search).get("renderer") === "webgl";
+const query = new URLSearchParams(window.location.search);
+const wantWebGL = query.get("renderer") === "webgl";
+// The bridge's token (printed by `membrane view`), passed on to the WebSocket.
+const token = query.get("token") || "";
 window.membraneView = state;
 
 function showError(message) {
@@ -26,6 +30,19 @@ function showError(message) {
 function showStatus(message) {
   $("error").hidden = true;
   $("status").textContent = message;
+}
+
+// The bridge refused one of this page's messages: shown for a few seconds, nothing else
+// changes (the connection and the session are kept; no reconnect).
+let refusedTimer = null;
+function showRefused(message) {
+  state.refused.push(message);
+  $("error").textContent = message;
+  $("error").hidden = false;
+  clearTimeout(refusedTimer);
+  refusedTimer = setTimeout(() => {
+    if ($("error").textContent === message) $("error").hidden = true;
+  }, 5000);
 }
 
 // A grid's heat map or rope; a point list where its points are (a scatter on a membrane).
@@ -92,6 +109,7 @@ let socket = null;
 function send(message) {
   if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify(message));
 }
+state.send = send; // for tests: what the page would send
 
 function press(event) {
   if (!state.scene || !state.scene.live) return;
@@ -128,17 +146,25 @@ function onStats(message) {
   ].join("\n");
 }
 
+// Reconnect after the bridge went away, waiting longer each time (1 s, 2 s, ... 30 s) so that a
+// bridge that keeps refusing is not asked again every second; a scene resets the wait.
+const RETRY_MIN_MS = 1000, RETRY_MAX_MS = 30000;
+let retryMs = RETRY_MIN_MS;
+
 function connect() {
   const url = new URL("ws", window.location.href);
   url.protocol = url.protocol === "https:" ? "wss:" : "ws:";
+  url.search = new URLSearchParams({ token }).toString();
+  state.connects += 1;
   socket = new WebSocket(url);
   socket.binaryType = "arraybuffer";
   socket.onopen = () => { state.connected = true; showStatus("bridge connected, asking the server..."); };
   socket.onmessage = (event) => {
     if (typeof event.data === "string") {
       const message = JSON.parse(event.data);
-      if (message.type === "scene") onScene(message);
+      if (message.type === "scene") { retryMs = RETRY_MIN_MS; onScene(message); }
       else if (message.type === "stats") onStats(message);
+      else if (message.type === "error" && message.source === "page") showRefused(message.message);
       else if (message.type === "error") showError(message.message);
       else if (message.type === "status") showStatus(message.message);
       return;
@@ -154,8 +180,13 @@ function connect() {
   };
   socket.onclose = () => {
     state.connected = false;
-    showError("the bridge closed the connection (is `membrane view` still running?); retrying");
-    setTimeout(connect, 1000);
+    const wait = retryMs;
+    retryMs = Math.min(RETRY_MAX_MS, retryMs * 2);
+    showError(
+      "the bridge closed the connection or refused it (is `membrane view` still running? " +
+      "open the address it printed, with its ?token=); retrying in " + `${wait / 1000} s`
+    );
+    setTimeout(connect, wait);
   };
 }
 
