@@ -33,6 +33,7 @@ from membrane_client.protocol import (
     ErrorCode,
     Request,
     RequestError,
+    decode,
     encode,
     ok_reply,
     pack_array,
@@ -117,6 +118,14 @@ class Sent(NamedTuple):
     token: str | None
     request_id: int
     reply: bytes
+
+    def reply_to(self, request: Request) -> bytes:
+        """The stored reply, for a re-send: byte for byte when it carries the same request id
+        (a Lazy Pirate retry), else under the re-send's own id (a retry that was numbered
+        anew), so that its client accepts it."""
+        if request.id == self.request_id:
+            return self.reply
+        return encode({**decode(self.reply), "id": request.id})
 
     def resent_by(self, request: Request) -> bool:
         """Whether ``request`` re-sends this one: the same Session token (and, without a token,
@@ -312,7 +321,7 @@ class LiveOps:
         if existing is not None:
             same_scene = existing.served.name == served.name
             if same_scene and existing.opened.resent_by(request):  # a re-sent open
-                return existing.opened.reply
+                return existing.opened.reply_to(request)
             raise RequestError(ErrorCode.SESSION_EXISTS, "this session id is open: close it first")
         if self.table.taken(session_id):  # another key's: say no more than that it is taken
             raise RequestError(ErrorCode.SESSION_EXISTS, "this session id is taken: pick another")
@@ -339,7 +348,7 @@ class LiveOps:
             last = session.last_step
             if k == session.k - 1 and last is not None and last.resent_by(request):
                 self.table.counts["resent"] += 1
-                return last.reply  # a Lazy Pirate re-send: never applied twice
+                return last.reply_to(request)  # a re-send: never applied twice
             self.table.counts["mismatches"] += 1
             raise RequestError(
                 ErrorCode.STEP_MISMATCH,

@@ -319,3 +319,20 @@ def test_an_old_scene_lives_exactly_as_long_as_a_session_holds_it() -> None:
         assert old_scene() is None
     finally:
         gc.enable()
+
+
+def test_a_resend_numbered_anew_gets_the_stored_reply_under_its_own_id(
+    dispatcher: Dispatcher,
+) -> None:
+    """A client that retries with a new request id (not the Lazy Pirate's same bytes) must get
+    a reply its id check accepts: the stored one, re-addressed, never applied twice."""
+    session = _session(_client(dispatcher), "membrane-live")
+    step = Request("step", 500, session.id, scene="membrane-live", k=0, token=session.token)
+    first = decode(dispatcher.handle([step.to_wire()]).reply)
+    step.id = 501
+    again = decode(dispatcher.handle([step.to_wire()]).reply)
+    assert first["id"] == 500 and again["id"] == 501
+    assert {**again, "id": 500} == first  # the same step, not a second one
+    reopen = Request("open", 502, session.id, scene="membrane-live", token=session.token)
+    reopened = decode(dispatcher.handle([reopen.to_wire()]).reply)
+    assert reopened["ok"] and reopened["id"] == 502 and reopened["k"] == 0
