@@ -1,6 +1,6 @@
 """Time per simulation step of the two ways to move the lattice, against the CoppeliaSim stand-in.
 
-Starts the stand-in (``python -m membrane_coppelia.coppelia_standin``) and a membrane server
+Starts the stand-in (``python -m membrane_coppelia.standin``) and a membrane server
 (``membrane serve``) as separate processes on loopback, then drives the scene's lattice (400
 spheres for the built-in ``membrane`` scene) for ``--steps`` steps with each move path:
 
@@ -35,15 +35,11 @@ from typing import Any
 import numpy as np
 
 from membrane_client import Client
-from membrane_coppelia.coppelia import (
-    BATCHED,
-    PER_SPHERE,
-    SimulatorLink,
-    SphereLattice,
-    connect_simulator,
-)
-from membrane_coppelia.coppelia_lua import BATCH_FUNCTION, BATCH_SCRIPT
-from membrane_coppelia.coppelia_standin import SIM_CONSTANTS, FakeScene
+from membrane_coppelia.batch_script import BATCH_FUNCTION, BATCH_SCRIPT
+from membrane_coppelia.film import run_film
+from membrane_coppelia.lattice import BATCHED, PER_SPHERE, SphereLattice
+from membrane_coppelia.link import SimulatorLink, connect_simulator
+from membrane_coppelia.standin import SIM_CONSTANTS, FakeScene
 
 log = logging.getLogger("coppelia_paths")
 
@@ -121,7 +117,7 @@ def measure_path(link: SimulatorLink, server: str, batched: bool, steps: int) ->
         ) as lattice,
     ):
         lattice.build()
-        result = lattice.run(max_steps=steps)
+        result = run_film(lattice, max_steps=steps)
     timings = result.timings
     simulator_side = np.array(timings.total) - np.array(timings.query)
     return {
@@ -174,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, default=None, help="write the figures here")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    standin = [sys.executable, "-m", "membrane_coppelia.coppelia_standin", "--port", "0"]
+    standin = [sys.executable, "-m", "membrane_coppelia.standin", "--port", "0"]
     serve = [sys.executable, "-m", "membrane_cli", "serve", "--scene", args.scene]
     serve += ["--bind", "tcp://127.0.0.1:*"]
     with (

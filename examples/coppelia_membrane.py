@@ -13,7 +13,7 @@ Run it with CoppeliaSim 4.6+ open (ZeroMQ remote API on port 23000)::
 
 Without CoppeliaSim, the stand-in plays its part::
 
-    python -m membrane_coppelia.coppelia_standin --port 23000 &
+    python -m membrane_coppelia.standin --port 23000 &
     python examples/coppelia_membrane.py
 """
 
@@ -26,13 +26,10 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
 from membrane_client import Client
-from membrane_coppelia.coppelia import (
-    DEFAULT_SIM_PORT,
-    LatticeStyle,
-    SimulatorError,
-    SphereLattice,
-    connect_simulator,
-)
+from membrane_coppelia.film import run_film
+from membrane_coppelia.lattice import LatticeStyle, SphereLattice
+from membrane_coppelia.link import DEFAULT_SIM_PORT, SimulatorError
+from membrane_coppelia.options import RunOptions
 
 SCENE = "membrane"
 LATTICE_SHAPE = (20, 20)
@@ -72,23 +69,33 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo; returns the exit code (1 when CoppeliaSim does not answer)."""
     args = parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    options = RunOptions(
+        server_timeout=2.0,
+        sim_host=args.sim_host,
+        sim_port=args.sim_port,
+        sim_timeout=args.sim_timeout,
+        style=STYLE,
+        batched=not args.per_sphere,
+        keep=args.keep,
+        max_steps=args.steps,
+    )
     try:
-        link = connect_simulator(args.sim_host, args.sim_port, args.sim_timeout)
+        link = options.connect_simulator()
     except SimulatorError as exc:
         print(f"coppelia_membrane: {exc}", file=sys.stderr)
         return 1
     try:
         with (
             membrane_server(args.connect, SCENE) as address,
-            Client(address, timeout=2.0) as client,
+            Client(address, timeout=options.server_timeout) as client,
             SphereLattice(
                 link.sim,
                 client,
-                style=STYLE,
-                batched=not args.per_sphere,
-                keep=args.keep,
+                style=options.style,
+                batched=options.batched,
+                keep=options.keep,
                 address=link.address,
-                timeout=args.sim_timeout,
+                timeout=options.sim_timeout,
             ) as lattice,
         ):
             info = client.describe()
@@ -97,7 +104,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "scene %s has a %s lattice, not %s", info.name, info.shape, LATTICE_SHAPE
                 )
             lattice.build()
-            result = lattice.run(max_steps=args.steps)
+            result = run_film(lattice, max_steps=options.max_steps)
     except SimulatorError as exc:
         print(f"coppelia_membrane: {exc}", file=sys.stderr)
         return 1

@@ -12,7 +12,7 @@ Run it with CoppeliaSim 4.6+ open (ZeroMQ remote API on port 23000)::
     python examples/coppelia_rope.py                          # serves the `rope` scene itself
     python examples/coppelia_rope.py --connect tcp://127.0.0.1:5555   # or a running server
 
-Without CoppeliaSim: ``python -m membrane_coppelia.coppelia_standin --port 23000`` first.
+Without CoppeliaSim: ``python -m membrane_coppelia.standin --port 23000`` first.
 """
 
 from __future__ import annotations
@@ -23,12 +23,10 @@ import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
-from membrane_coppelia.coppelia import (
-    DEFAULT_SIM_PORT,
-    LatticeStyle,
-    SimulatorError,
-    drive_lattice,
-)
+from membrane_coppelia.film import drive_lattice
+from membrane_coppelia.lattice import LatticeStyle
+from membrane_coppelia.link import DEFAULT_SIM_PORT, SimulatorError
+from membrane_coppelia.options import RunOptions
 
 SCENE = "rope"
 STYLE = LatticeStyle(sphere_size=0.05, color=(0.30, 0.45, 0.85), name="rope")
@@ -62,15 +60,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
         with membrane_server(args.connect, SCENE) as address:
-            result = drive_lattice(
-                address,
+            options = RunOptions(
+                server=address,
                 sim_host=args.sim_host,
                 sim_port=args.sim_port,
-                max_steps=args.steps,
+                style=STYLE,
                 batched=not args.per_sphere,
                 keep=args.keep,
-                style=STYLE,
+                max_steps=args.steps,
             )
+            result = drive_lattice(options)
     except SimulatorError as exc:
         print(f"coppelia_rope: {exc}", file=sys.stderr)
         return 1

@@ -17,9 +17,10 @@ import pytest
 
 pytest.importorskip("coppeliasim_zmqremoteapi_client")
 
-from membrane_coppelia.coppelia_interrupt import Interrupted, interrupt_on
-from membrane_coppelia.coppelia_probe import drive_probe
-from membrane_coppelia.coppelia_standin import CoppeliaStandin
+from membrane_coppelia.interrupt import Interrupted, interrupt_on
+from membrane_coppelia.options import RunOptions
+from membrane_coppelia.probe import drive_probe
+from membrane_coppelia.standin import CoppeliaStandin
 
 DT = 0.001  # rope-live's: the stand-in starts with it, so no time-step warning on stderr
 
@@ -62,9 +63,8 @@ def test_a_signal_mid_run_stops_the_simulation(
             threading.Timer(0.005, os.kill, (os.getpid(), signum)).start()
 
     with interrupt_on(), pytest.raises(Interrupted) as caught:
-        drive_probe(
-            "/tip", rope_server.address, sim_port=standin.port, force_signal="f", on_step=on_step
-        )
+        options = RunOptions(server=rope_server.address, sim_port=standin.port)
+        drive_probe("/tip", options, force_signal="f", on_step=on_step)
     assert caught.value.signum == signum and caught.value.simulator_released is True
     assert max(forces) > 0.0 and standin.scene.properties["signal.f"] == 0.0  # cleared
     assert _released(standin) and not standin.protocol.held()
@@ -148,7 +148,7 @@ def test_after_sigkill_the_simulator_is_released_within_the_remote_timeout(
 def test_a_signal_swallowed_by_a_finalizer_is_raised_again_by_the_run_loop() -> None:
     """A handler that runs inside a ``__del__`` raises into the void ("Exception ignored"): the
     run loops' ``raise_if_interrupted`` must raise it again, or the adapter runs on."""
-    from membrane_coppelia.coppelia_interrupt import Interrupted, interrupt_on, raise_if_interrupted
+    from membrane_coppelia.interrupt import Interrupted, interrupt_on, raise_if_interrupted
 
     class SignalsWhenCollected:
         def __del__(self) -> None:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -12,10 +11,11 @@ pytest.importorskip("coppeliasim_zmqremoteapi_client")
 
 from membrane_cli.dispatcher import main as membrane_main
 from membrane_client import Client, SceneInfo
-from membrane_coppelia.coppelia import BATCHED
-from membrane_coppelia.coppelia_link import ObjectNotFound, connect_simulator
-from membrane_coppelia.coppelia_probe import TipMapping, drive_probe
-from membrane_coppelia.coppelia_standin import CoppeliaStandin
+from membrane_coppelia.lattice import BATCHED
+from membrane_coppelia.link import ObjectNotFound
+from membrane_coppelia.options import RunOptions
+from membrane_coppelia.probe import TipMapping, drive_probe
+from membrane_coppelia.standin import CoppeliaStandin
 
 SIM_TIMEOUT = 5.0
 REST_Z, SCALE = 1.0, 100.0  # membrane-live's placement: height 1, displacement x 100
@@ -81,12 +81,6 @@ def test_mapping_on_another_axis_and_on_a_rope() -> None:
 # -- the scripted tip against the stand-in and a live server --------------------------------
 
 
-@pytest.fixture
-def standin() -> Iterator[CoppeliaStandin]:
-    with CoppeliaStandin() as server:
-        yield server
-
-
 def _tip_height(t: float) -> float:
     """Above the surface, down to DEPTH below it, held, back up, above."""
     bottom = REST_Z - SCALE * DEPTH
@@ -136,16 +130,14 @@ def _press_and_check(live_server: Any, standin: CoppeliaStandin) -> None:
         sphere_z.append(scene.world_position(spheres[f"node{index}"])[2])
         signal_values.append(_signal(standin, "tipForce"))
 
-    result = drive_probe(
-        "/tip",
-        live_server.address,
-        force_signal="tipForce",
-        sim_port=standin.port,
-        max_steps=STEPS,
-        sim_timeout=SIM_TIMEOUT,
+    options = RunOptions(
+        server=live_server.address,
         server_timeout=5.0,
-        on_step=on_step,
+        sim_port=standin.port,
+        sim_timeout=SIM_TIMEOUT,
+        max_steps=STEPS,
     )
+    result = drive_probe("/tip", options, force_signal="tipForce", on_step=on_step)
     assert (result.steps, result.reason, result.path) == (STEPS, "max_steps", BATCHED)
     assert result.sim_dt == info.dt == 0.001
     tips, forces = np.array(result.tips), np.array(result.forces)
@@ -186,7 +178,8 @@ def _signal(standin: CoppeliaStandin, name: str) -> float:
 
 def test_an_unknown_probe_object_is_bad_input(live_server: Any, standin: CoppeliaStandin) -> None:
     with pytest.raises(ObjectNotFound, match=r"no object '/nowhere' in CoppeliaSim's scene"):
-        drive_probe("/nowhere", live_server.address, sim_port=standin.port, max_steps=1)
+        options = RunOptions(server=live_server.address, sim_port=standin.port, max_steps=1)
+        drive_probe("/nowhere", options)
     assert standin.scene.objects == {} and not standin.scene.running
 
 
@@ -234,13 +227,3 @@ def test_cli_probe_bad_input_exits_2(
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1, err
     assert not standin.scene.running and [o.alias for o in standin.scene.of_kind("shape")] == []
-
-
-def test_the_remote_timeout_is_sent_with_the_first_request(standin: CoppeliaStandin) -> None:
-    link = connect_simulator("127.0.0.1", standin.port, SIM_TIMEOUT, remote_timeout=7.5)
-    try:
-        (client,) = standin.protocol.snapshot().values()
-        assert client.timeout == 7.5
-    finally:
-        link.close()
-    assert standin.protocol.snapshot() == {}  # closing said goodbye (_*end*_): forgotten now

@@ -17,9 +17,8 @@ import zmq
 pytest.importorskip("coppeliasim_zmqremoteapi_client")
 from coppeliasim_zmqremoteapi_client import RemoteAPIClient
 
-from membrane_coppelia.coppelia_fakescene import RELEASES, FakeScene
-from membrane_coppelia.coppelia_lua import BATCH_FUNCTION, BATCH_SCRIPT
-from membrane_coppelia.coppelia_standin import SIM_CONSTANTS, CoppeliaStandin
+from membrane_coppelia.batch_script import BATCH_FUNCTION, BATCH_SCRIPT
+from membrane_coppelia.standin import RELEASES, SIM_CONSTANTS, CoppeliaStandin, FakeScene
 
 TIMEOUT_MS = 2000
 
@@ -347,7 +346,7 @@ def test_a_standin_that_stops_answering_times_the_client_out() -> None:
 
 def test_runs_as_a_module_and_stops_on_sigterm() -> None:
     process = subprocess.Popen(
-        [sys.executable, "-m", "membrane_coppelia.coppelia_standin", "--port", "0", "--dt", "0.01"],
+        [sys.executable, "-m", "membrane_coppelia.standin", "--port", "0", "--dt", "0.01"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -373,7 +372,7 @@ def test_runs_as_a_module_and_stops_on_sigterm() -> None:
 
 def test_bad_arguments_exit_2() -> None:
     result = subprocess.run(
-        [sys.executable, "-m", "membrane_coppelia.coppelia_standin", "--dt", "-1"],
+        [sys.executable, "-m", "membrane_coppelia.standin", "--dt", "-1"],
         capture_output=True,
         text=True,
         timeout=30,

@@ -86,8 +86,9 @@ def membrane_command() -> list[str]:
 def standin() -> Iterator[Any]:
     """A CoppeliaSim stand-in on a free loopback port, at the membrane scene's dt (so that the
     adapter has no time step to change and nothing to warn about)."""
-    coppelia_standin = pytest.importorskip("membrane_coppelia.coppelia_standin")
-    with coppelia_standin.CoppeliaStandin(dt=0.01) as sim:
+    from membrane_coppelia.standin import CoppeliaStandin  # the dev extra has it: never a skip
+
+    with CoppeliaStandin(dt=0.01) as sim:
         yield sim
 
 

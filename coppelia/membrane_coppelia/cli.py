@@ -4,7 +4,7 @@ This module imports with the core dependencies only; the CoppeliaSim remote API 
 ``coppelia`` extra) is imported when the command runs.
 
 With ``--probe OBJECT_PATH`` (a live scene) a scene object presses the tissue each step
-(:mod:`membrane_coppelia.coppelia_probe`); ``--force-signal NAME`` writes the contact force back.
+(:mod:`membrane_coppelia.probe`); ``--force-signal NAME`` writes the contact force back.
 
 Exit codes: 0 the run ended (its end time, its step limit, or the scene's ``error`` policy
 refusing a time, which is reported); 1 CoppeliaSim or the membrane server did not answer within
@@ -19,14 +19,15 @@ import argparse
 import logging
 import sys
 import time
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from membrane_cli.arguments import UsageError, bounded_float, bounded_int
 from membrane_cli.connection import add_connection_arguments
 from membrane_client.errors import UserError
 
 if TYPE_CHECKING:
-    from membrane_coppelia.coppelia_interrupt import Interrupted
+    from membrane_coppelia.interrupt import Interrupted
+    from membrane_coppelia.options import RunOptions
 
 __all__ = ["add_coppelia"]
 
@@ -168,17 +169,32 @@ class _Progress:
 def _run_coppelia(args: argparse.Namespace) -> int:
     from membrane_client.errors import ServerError, Timeout
     from membrane_client.protocol import ErrorCode
-    from membrane_coppelia.coppelia import LatticeStyle, SimulatorError
-    from membrane_coppelia.coppelia_interrupt import Interrupted, interrupt_on
+    from membrane_coppelia.interrupt import Interrupted, interrupt_on
+    from membrane_coppelia.lattice import LatticeStyle
+    from membrane_coppelia.link import SimulatorError
+    from membrane_coppelia.options import RunOptions
 
     if args.force_signal is not None and args.probe is None:
         raise UsageError("--force-signal needs --probe (the force comes from the probe)")
-    style = LatticeStyle(sphere_size=args.sphere_size, color=args.color)
+    options = RunOptions(
+        server=args.connect,
+        scene=args.scene,
+        server_timeout=args.timeout,
+        sim_host=args.sim_host,
+        sim_port=args.sim_port,
+        sim_timeout=args.sim_timeout,
+        remote_timeout=args.remote_timeout,
+        style=LatticeStyle(sphere_size=args.sphere_size, color=args.color),
+        batched=not args.per_sphere,
+        keep=args.keep,
+        duration=args.duration,
+        max_steps=args.steps,
+    )
     progress = _Progress()
     try:
         with interrupt_on():
             run = _run_probe if args.probe else _run_film
-            lines = run(args, style, progress)
+            lines = run(args, options, progress)
     except Interrupted as exc:
         progress.done()
         print(f"membrane coppelia: {_interrupted(exc)}", file=sys.stderr)
@@ -218,49 +234,24 @@ def _interrupted(exc: Interrupted) -> str:
     return f"interrupted by {exc.name}"
 
 
-def _run_film(args: argparse.Namespace, style: Any, progress: _Progress) -> list[str]:
-    from membrane_coppelia.coppelia import drive_lattice
+def _run_film(args: argparse.Namespace, options: RunOptions, progress: _Progress) -> list[str]:
+    from membrane_coppelia.film import drive_lattice
 
-    result = drive_lattice(
-        args.connect,
-        scene=args.scene,
-        sim_host=args.sim_host,
-        sim_port=args.sim_port,
-        duration=args.duration,
-        max_steps=args.steps,
-        batched=not args.per_sphere,
-        keep=args.keep,
-        style=style,
-        sim_timeout=args.sim_timeout,
-        server_timeout=args.timeout,
-        remote_timeout=args.remote_timeout,
-        on_step=progress,
-    )
+    result = drive_lattice(options, on_step=progress)
     return [
         f"scene {result.scene}: {result.spheres} spheres moved {result.path}: {result.message}",
         f"simulator dt {result.sim_dt:g} s; per step p50/p99: {result.timings.summary()}",
     ]
 
 
-def _run_probe(args: argparse.Namespace, style: Any, progress: _Progress) -> list[str]:
-    from membrane_coppelia.coppelia_probe import drive_probe
+def _run_probe(args: argparse.Namespace, options: RunOptions, progress: _Progress) -> list[str]:
+    from membrane_coppelia.probe import drive_probe
 
     result = drive_probe(
         args.probe,
-        args.connect,
-        scene=args.scene,
+        options,
         radius=args.probe_radius,
         force_signal=args.force_signal,
-        sim_host=args.sim_host,
-        sim_port=args.sim_port,
-        duration=args.duration,
-        max_steps=args.steps,
-        batched=not args.per_sphere,
-        keep=args.keep,
-        style=style,
-        sim_timeout=args.sim_timeout,
-        server_timeout=args.timeout,
-        remote_timeout=args.remote_timeout,
         on_step=progress,
     )
     lines = [

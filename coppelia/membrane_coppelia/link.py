@@ -12,8 +12,8 @@ Two timeouts guard a run, one on each side of the socket:
   set before the first request: the add-on reads it once, when it first sees the client).
 
 After a timeout, or an interrupt in the middle of a request, the client's REQ socket is stuck
-mid-exchange: it is never used again. :func:`release_simulator` stops the simulation from a fresh
-connection, which resets every client's stepping in the add-on.
+mid-exchange: it is never used again (:class:`CallGuard`). :func:`release_simulator` stops the
+simulation from a fresh connection, which resets every client's stepping in the add-on.
 """
 
 from __future__ import annotations
@@ -34,7 +34,9 @@ __all__ = [
     "DEFAULT_REMOTE_TIMEOUT",
     "DEFAULT_SIM_HOST",
     "DEFAULT_SIM_PORT",
+    "DEFAULT_SIM_TIMEOUT",
     "STOP_WAIT_S",
+    "CallGuard",
     "ObjectNotFound",
     "SimulatorConnectionLost",
     "SimulatorError",
@@ -52,6 +54,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_SIM_HOST = "127.0.0.1"
 DEFAULT_SIM_PORT = 23000  # the add-on's default (plus the instance's index from 4.7: see docs)
+DEFAULT_SIM_TIMEOUT = 5.0  # how long we wait for one reply
 # Long enough for a slow step (a membrane query, a first-time build of 10,000 spheres between two
 # requests), short enough that a killed adapter frees the simulator soon.
 DEFAULT_REMOTE_TIMEOUT = 20.0
@@ -129,7 +132,7 @@ class SimulatorLink:
 def connect_simulator(
     host: str = DEFAULT_SIM_HOST,
     port: int = DEFAULT_SIM_PORT,
-    timeout: float = 5.0,
+    timeout: float = DEFAULT_SIM_TIMEOUT,
     remote_timeout: float = DEFAULT_REMOTE_TIMEOUT,
 ) -> SimulatorLink:
     """Connect to CoppeliaSim (or the stand-in) and fetch its ``sim`` object.
@@ -185,6 +188,36 @@ def translate_remote_errors(address: str, timeout: float | None, doing: str) -> 
         raise SimulatorError(f"CoppeliaSim refused a call while {doing}: {one_line(exc)}") from None
 
 
+class CallGuard:
+    """The remote calls made on one connection: their errors become :class:`SimulatorError`, and
+    once the connection is unusable none is made on it again.
+
+    Unusable means a lost connection (a timeout, a ZeroMQ error) or a call interrupted by a
+    signal: its REQ socket may be stuck mid-exchange, and the next send would fail or hang.
+    """
+
+    def __init__(self, address: str = "CoppeliaSim", timeout: float | None = None) -> None:
+        self.address = address
+        self.timeout = timeout
+        self.dead = False
+
+    @contextmanager
+    def calling(self, doing: str) -> Iterator[None]:
+        """Make remote calls; ``doing`` names them in errors ("while <doing>")."""
+        if self.dead:
+            raise SimulatorConnectionLost(f"the connection to {self.address} was lost earlier")
+        try:
+            with translate_remote_errors(self.address, self.timeout, doing):
+                yield
+        except SimulatorConnectionLost:
+            self.dead = True
+            raise
+        except BaseException as exc:
+            if not isinstance(exc, Exception):  # an interrupt: the REQ socket may be stuck
+                self.dead = True
+            raise
+
+
 def one_line(exc: BaseException) -> str:
     """An error reply as one line (the add-on encodes Lua newlines and tabs as _=NL=_, _=TB=_)."""
     text = str(exc).replace("_=NL=_", " ").replace("_=TB=_", " ")
@@ -209,7 +242,7 @@ def stop_and_wait(sim: Any, wait: float = STOP_WAIT_S) -> None:
 def release_simulator(
     host: str,
     port: int,
-    timeout: float = 5.0,
+    timeout: float = DEFAULT_SIM_TIMEOUT,
     remote_timeout: float = DEFAULT_REMOTE_TIMEOUT,
 ) -> None:
     """Stop the simulation from a fresh connection (the old one being unusable).

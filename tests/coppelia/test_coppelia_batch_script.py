@@ -1,4 +1,4 @@
-"""The batch script (coppelia_batch.lua) run in a real Lua 5.3, the Lua CoppeliaSim 4.6-4.10
+"""The batch script (batch_script.lua) run in a real Lua 5.3, the Lua CoppeliaSim 4.6-4.10
 embed, with a mock ``sim`` table; and the stand-in's Python stand-in for it checked against it.
 
 lupa (the ``dev`` extra) embeds the interpreters, so these tests run wherever the suite does.
@@ -11,8 +11,8 @@ from typing import Any
 import pytest
 from lupa import lua53
 
-from membrane_coppelia.coppelia_fakescene import FakeScene
-from membrane_coppelia.coppelia_lua import BATCH_FUNCTION, BATCH_SCRIPT
+from membrane_coppelia.batch_script import BATCH_FUNCTION, BATCH_SCRIPT
+from membrane_coppelia.standin import FakeScene
 
 MOCK_SIM = """
 local sim = {handle_world = -1, calls = {}}
@@ -33,7 +33,7 @@ def _runtime() -> Any:
 def _compile(lua: Any, text: str) -> tuple[Any, Any]:
     """Lua's own ``load``: (the chunk, False) or (False, the error message)."""
     load = lua.eval(
-        "function(s) local f, e = load(s, '=coppelia_batch.lua'); return f or false, e or false end"
+        "function(s) local f, e = load(s, '=batch_script.lua'); return f or false, e or false end"
     )
     chunk, error = load(text)
     return chunk, error
@@ -59,7 +59,7 @@ def test_the_script_compiles_in_lua_53() -> None:
     chunk, error = _compile(lua, BATCH_SCRIPT)
     assert error is False and chunk is not False
     broken, message = _compile(lua, BATCH_SCRIPT + "\nend end")
-    assert broken is False and "coppelia_batch.lua" in message  # the check can fail
+    assert broken is False and "batch_script.lua" in message  # the check can fail
 
 
 def test_the_function_moves_every_handle_relative_to_the_frame() -> None:

@@ -23,37 +23,24 @@ import math
 import re
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from membrane_client.client import DEFAULT_ADDRESS, Client
 from membrane_client.errors import MembraneError, UserError
 from membrane_client.frame import SceneInfo
 from membrane_client.session import Probe, Session
-from membrane_coppelia.coppelia import (
-    COMPLETED,
-    MAX_STEPS,
-    LatticeStyle,
-    SphereLattice,
-    StepTimings,
-    simulator_reconnect,
-)
-from membrane_coppelia.coppelia_compat import SimCalls
-from membrane_coppelia.coppelia_interrupt import raise_if_interrupted
-from membrane_coppelia.coppelia_link import (
-    DEFAULT_REMOTE_TIMEOUT,
-    DEFAULT_SIM_HOST,
-    DEFAULT_SIM_PORT,
-    ObjectNotFound,
-    SimulatorError,
-    connect_simulator,
-)
+from membrane_coppelia.compat import SimCalls
+from membrane_coppelia.interrupt import raise_if_interrupted
+from membrane_coppelia.lattice import SphereLattice
+from membrane_coppelia.link import ObjectNotFound, SimulatorError
+from membrane_coppelia.options import RunOptions
+from membrane_coppelia.results import COMPLETED, MAX_STEPS, ProbeRunResult, StepTimings
 
 __all__ = [
     "DEFAULT_PROBE_RADIUS",
     "ForceSignal",
-    "ProbeRunResult",
+    "OnProbeStep",
     "TipMapping",
     "drive_probe",
     "find_object",
@@ -126,38 +113,6 @@ class ForceSignal:
 
     def describe(self) -> str:
         return self.calls.signal_call.replace("NAME", self.name)
-
-
-@dataclass
-class ProbeRunResult:
-    """What a probe run did.
-
-    Attributes:
-        scene, spheres, path, sim_dt, timings: as in :class:`~membrane_coppelia.coppelia.RunResult`
-            (``timings.read`` is reading the tip, ``timings.query`` the session's step).
-        steps: simulation steps taken.
-        reason: ``"completed"`` (``duration`` reached) or ``"max_steps"``.
-        message: one line for people.
-        depths, forces: per step, the tip's depth (problem units, <= 0 above the surface) and
-            the contact force read back (0 out of contact).
-        tips: (steps, 3) tip positions read, relative to the lattice's parent dummy.
-        last_positions: (n, 3) sphere positions sent at the last step.
-        signal: the call that wrote the force, if any.
-    """
-
-    scene: str
-    spheres: int
-    steps: int
-    path: str
-    reason: str
-    message: str
-    sim_dt: float
-    timings: StepTimings
-    depths: list[float] = field(default_factory=list)
-    forces: list[float] = field(default_factory=list)
-    tips: list[tuple[float, float, float]] = field(default_factory=list)
-    last_positions: np.ndarray | None = None
-    signal: str | None = None
 
 
 def find_object(lattice: SphereLattice, path: str) -> int:
@@ -241,8 +196,7 @@ def _loop(
     max_steps: int | None,
     on_step: OnProbeStep | None,
 ) -> ProbeRunResult:
-    info = lattice.info
-    assert info is not None
+    info = lattice.scene_info()
     mapping = TipMapping.from_info(info)
     result = ProbeRunResult(
         scene=info.name,
@@ -319,26 +273,20 @@ def _close_quietly(session: Session) -> None:
 
 def drive_probe(
     probe_path: str,
-    server: str = DEFAULT_ADDRESS,
+    options: RunOptions | None = None,
     *,
-    scene: str | None = None,
     radius: float = DEFAULT_PROBE_RADIUS,
     force_signal: str | None = None,
-    sim_host: str = DEFAULT_SIM_HOST,
-    sim_port: int = DEFAULT_SIM_PORT,
-    duration: float | None = None,
-    max_steps: int | None = None,
-    batched: bool = True,
-    keep: bool = False,
-    style: LatticeStyle | None = None,
-    sim_timeout: float = 5.0,
-    server_timeout: float = 1.0,
-    remote_timeout: float = DEFAULT_REMOTE_TIMEOUT,
     on_step: OnProbeStep | None = None,
 ) -> ProbeRunResult:
     """Connect to both sides, open a live session, build the lattice, press it with the object
-    at ``probe_path``, clean up. Arguments as in :func:`run_probe` and
-    :func:`~membrane_coppelia.coppelia.drive_lattice`.
+    at ``probe_path``, clean up.
+
+    Args:
+        probe_path: the pressing object's path in the scene (``sim.getObject``, e.g. '/UR5/tip').
+        options: where both sides are and how to run (default: :class:`RunOptions`' defaults;
+            with neither ``duration`` nor ``max_steps`` the run goes on until interrupted).
+        radius, force_signal (``signal``), on_step: as in :func:`run_probe`.
 
     Raises:
         ObjectNotFound: no object at ``probe_path``.
@@ -346,21 +294,13 @@ def drive_probe(
         Interrupted: SIGINT or SIGTERM (under ``interrupt_on``); the simulation was stopped.
     """
     _check_probe_arguments(radius, force_signal)  # before connecting to anything
-    link = connect_simulator(sim_host, sim_port, sim_timeout, remote_timeout)
+    options = options or RunOptions()
+    link = options.connect_simulator()
     try:
-        with Client(server, timeout=server_timeout, scene=scene) as client:
-            session = client.session(scene)
+        with options.client() as client:
+            session = client.session(options.scene)
             try:
-                with SphereLattice(
-                    link.sim,
-                    client,
-                    style=style,
-                    batched=batched,
-                    keep=keep,
-                    address=link.address,
-                    timeout=sim_timeout,
-                    reconnect=simulator_reconnect(sim_host, sim_port, sim_timeout, remote_timeout),
-                ) as lattice:
+                with options.lattice(link, client) as lattice:
                     try:
                         tip = find_object(lattice, probe_path)
                         lattice.build(session.info)
@@ -370,8 +310,8 @@ def drive_probe(
                             tip,
                             radius=radius,
                             signal=force_signal,
-                            duration=duration,
-                            max_steps=max_steps,
+                            duration=options.duration,
+                            max_steps=options.max_steps,
                             on_step=on_step,
                         )
                     finally:

@@ -1,4 +1,4 @@
-"""A stand-in for CoppeliaSim's ZeroMQ remote API add-on, for tests and benchmarks.
+"""The stand-in's model of CoppeliaSim's ZeroMQ remote API add-on: its protocol and its loop.
 
 It speaks version 2 of the remote API protocol, the one ``coppeliasim-zmqremoteapi-client``
 2.0.4 uses, so that the real client talks to it unmodified:
@@ -21,52 +21,34 @@ was read), because that is where a simulator gets held or released:
   ended: at least two waits per step while running (as many as fit in the window), one while
   stopped.
 - ``sim.stopSimulation`` resets every client's stepping; the simulation then stops over several
-  passes (:class:`~membrane_coppelia.coppelia_fakescene.FakeScene`).
+  passes (:class:`~membrane_coppelia.standin.scene.FakeScene`).
 - A client unheard of for longer than its ``timeout`` (sent with its first request; 600 s when
   none) is forgotten, one per pass: a stepping client that vanished holds the simulation until
   then, and no longer.
 
-Behind it a :class:`~membrane_coppelia.coppelia_fakescene.FakeScene` plays one release (4.6 to
+Behind it a :class:`~membrane_coppelia.standin.scene.FakeScene` plays one release (4.6 to
 4.9). It measures round trips and our own overhead, nothing of CoppeliaSim's own cost.
-
-Run it alone with ``python -m membrane_coppelia.coppelia_standin --port 23000``.
 """
 
 from __future__ import annotations
 
-import argparse
 import logging
-import signal
-import sys
 import threading
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from types import FrameType
 from typing import Any
 
 import cbor2
 import zmq
 
-from membrane_coppelia.coppelia_fakescene import (
-    RELEASES,
-    SIM_CONSTANTS,
-    CallRefused,
-    FakeObject,
-    FakeScene,
-)
+from membrane_coppelia.standin.scene import CallRefused, FakeScene
 
 __all__ = [
     "DEFAULT_CLIENT_TIMEOUT",
     "PROTOCOL_VERSION",
-    "SIM_CONSTANTS",
-    "CallRefused",
     "CoppeliaStandin",
-    "FakeObject",
-    "FakeScene",
     "RemoteApiProtocol",
     "RemoteClient",
-    "main",
 ]
 
 log = logging.getLogger(__name__)
@@ -419,66 +401,3 @@ class CoppeliaStandin:
         reply = self.protocol.reply(request)
         log.debug("%s -> %s", request.get("func") if isinstance(request, dict) else "?", reply)
         return request, reply
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run the stand-in in the foreground until interrupted (SIGINT or SIGTERM)."""
-    parser = argparse.ArgumentParser(
-        prog="python -m membrane_coppelia.coppelia_standin",
-        description="A stand-in for CoppeliaSim's ZeroMQ remote API (protocol 2), on loopback.",
-    )
-    parser.add_argument("--port", type=int, default=23000, help="TCP port; 0 picks a free one")
-    parser.add_argument("--dt", type=float, default=0.05, help="initial simulation time step (s)")
-    parser.add_argument(
-        "--sim-version",
-        choices=sorted(RELEASES),
-        default="4.9",
-        help="the CoppeliaSim release to play (the calls it offers; default 4.9)",
-    )
-    parser.add_argument(
-        "--stop-answering-after",
-        type=int,
-        default=None,
-        metavar="N",
-        help="reply to N requests, then never again (simulates a hung CoppeliaSim)",
-    )
-    parser.add_argument(
-        "--no-scripts",
-        action="store_true",
-        help="offer no script calls (batched moves unavailable)",
-    )
-    args = parser.parse_args(argv)
-    if not 0 <= args.port <= 65535:
-        parser.error(f"--port must be in 0..65535, got {args.port}")
-    if not args.dt > 0.0:
-        parser.error(f"--dt must be > 0, got {args.dt}")
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        standin = CoppeliaStandin(
-            port=args.port,
-            dt=args.dt,
-            answer_limit=args.stop_answering_after,
-            scripts=not args.no_scripts,
-            version=args.sim_version,
-        )
-    except zmq.ZMQError as exc:
-        print(f"coppelia stand-in: cannot bind port {args.port}: {exc}", file=sys.stderr)
-        return 2
-
-    def _stop(signum: int, frame: FrameType | None) -> None:
-        standin.request_stop()
-
-    signal.signal(signal.SIGTERM, _stop)
-    signal.signal(signal.SIGINT, _stop)
-    # The first line is read by scripts (benchmarks/coppelia_paths.py): keep its start.
-    print(
-        f"coppelia stand-in listening on {standin.address} (CoppeliaSim {args.sim_version})",
-        flush=True,
-    )
-    standin.serve()
-    standin.stop()
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

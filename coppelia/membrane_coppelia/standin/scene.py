@@ -27,7 +27,7 @@ after 4.10, where it became asynchronous); legacy float signals and ``signal.*``
 separate stores (CoppeliaSim's ``sim.waitForSignal`` reads them in separate branches).
 
 The stand-in cannot run Lua: a script function is served by a Python implementation registered
-under its name (the lattice script's :data:`~membrane_coppelia.coppelia_lua.BATCH_FUNCTION`),
+under its name (the lattice script's :data:`~membrane_coppelia.batch_script.BATCH_FUNCTION`),
 and only when the script's text defines a function of that name. The Lua itself is run in a real
 Lua 5.3 in the tests, and checked against this implementation.
 """
@@ -41,7 +41,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from membrane_coppelia.coppelia_lua import BATCH_FUNCTION
+from membrane_coppelia.batch_script import BATCH_FUNCTION
 
 __all__ = [
     "RELEASES",
@@ -626,7 +626,7 @@ class FakeScene:
     def _batch_set_positions(
         self, handles: list[int], xyz: list[float], frame: int | None = None
     ) -> int:
-        """What ``membraneSetPositions`` in ``coppelia_batch.lua`` does."""
+        """What ``membraneSetPositions`` in ``batch_script.lua`` does."""
         if not isinstance(handles, list) or not isinstance(xyz, list):
             raise CallRefused(f"{BATCH_FUNCTION}: expected a list of handles and a list of floats")
         count = len(handles)

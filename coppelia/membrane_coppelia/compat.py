@@ -27,7 +27,7 @@ import logging
 from dataclasses import dataclass
 from typing import Any
 
-from membrane_coppelia.coppelia_link import SimulatorError
+from membrane_coppelia.link import SimulatorError
 
 __all__ = [
     "MAX_TIME_STEP",

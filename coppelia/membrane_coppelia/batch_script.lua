@@ -1,4 +1,4 @@
--- Installed into the CoppeliaSim scene by membrane_coppelia.coppelia (a customization script).
+-- Installed into the CoppeliaSim scene by membrane_coppelia.lattice (a customization script).
 -- It moves the whole sphere lattice in one remote call per simulation step, instead of one
 -- sim.setObjectPosition call per sphere.
 local sim = require('sim')
