@@ -14,9 +14,9 @@
   figure, and only what is left goes to frames.
 
 Evaluators are stateless: a frame depends on t alone, so any number of clients share one.
-Stateful models (advanced one step at a time from a client's initial condition) and
-interactive sessions (forces pushed by a client each step) will be a second interface keyed by
-the request envelope's ``session``; these four stay as they are.
+Stateful answers (a session stepped under the loads and probes a client sends) are the other
+interface, live engines (``membrane_models.live.LiveEngine``, served by ``live``), keyed by the
+envelope's ``session``.
 """
 
 from __future__ import annotations
