@@ -83,6 +83,15 @@ def add_serve(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
         help="live sessions open at once; more get too_many_sessions (default 64)",
     )
     parser.add_argument(
+        "--max-sessions-per-peer",
+        type=bounded_int(1, 100_000),
+        default=None,
+        metavar="N",
+        help="live sessions one peer (a connection; with CurveZMQ, a key) may hold at once "
+        "(default 16); many connections without keys can still fill --max-sessions: keys are "
+        "the defence",
+    )
+    parser.add_argument(
         "--session-idle-s",
         type=bounded_float(0, exclusive=True),
         default=300.0,
@@ -190,7 +199,8 @@ def _serve(
     import zmq
     from threadpoolctl import threadpool_limits
 
-    from membrane_server.live import SessionTable
+    from membrane_server import log_output
+    from membrane_server.live import DEFAULT_MAX_PER_PEER, SessionTable
     from membrane_server.server import (
         DEFAULT_PEER_BUDGET,
         SHUTDOWN_LINGER_MS,
@@ -207,6 +217,7 @@ def _serve(
     # it is what lets the last replies leave before the process exits.
     context: zmq.Context[zmq.Socket[bytes]] = zmq.Context()
     authenticator: CurveAuthenticator | None = None
+    output: log_output.LogOutput | None = None
     try:
         options, authenticator = _secure(args, context)
         server = Server(
@@ -217,8 +228,15 @@ def _serve(
             socket_options=options,
             peer_budget=args.peer_budget or DEFAULT_PEER_BUDGET,
             spin=args.spin_us / 1e6,
-            sessions=SessionTable(args.max_sessions, args.session_idle_s),
+            sessions=SessionTable(
+                args.max_sessions,
+                args.session_idle_s,
+                max_per_peer=args.max_sessions_per_peer or DEFAULT_MAX_PER_PEER,
+            ),
         )
+        # The scenes load: serving starts. Logging from here on neither blocks serving (a
+        # stderr pipe nobody reads) nor floods (where stderr has no descriptor: as it was).
+        output = log_output.installed() or log_output.install(sys.stderr)
         _warn_invisible_motion(server)
         server.install_signal_handlers()
 
@@ -234,7 +252,11 @@ def _serve(
         if authenticator is not None:
             authenticator.stop()
         context.destroy(linger=SHUTDOWN_LINGER_MS)
-    print("membrane serve: stopped", file=sys.stderr, flush=True)
+    if output is None:
+        print("membrane serve: stopped", file=sys.stderr, flush=True)
+    else:
+        output.write_text("membrane serve: stopped")  # through the queue: stderr may be full
+        output.drain(SHUTDOWN_LINGER_MS / 1000)
     return 0
 
 

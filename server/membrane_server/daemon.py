@@ -205,12 +205,25 @@ class _Notifier:
             os.close(fd)
 
 
-def _log_to(stream: IO[str]) -> None:
+def _plain_log_to(stream: IO[str]) -> None:
     root = logging.getLogger()
     for handler in list(root.handlers):
         root.removeHandler(handler)
     handler = logging.StreamHandler(stream)
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root.addHandler(handler)
+
+
+def _log_to(stream: IO[str]) -> None:
+    """Log to the daemon's file through a handler that never blocks the serving thread and
+    cannot flood the file (``log_output``)."""
+    from membrane_server.log_output import LOG_FORMAT, install
+
+    output = install(stream, replace_all=True)  # a log file has a descriptor
+    if output is not None:
+        output.setFormatter(logging.Formatter(LOG_FORMAT))  # the file's format, always
+    else:  # no descriptor: logging as before, blocking
+        _plain_log_to(stream)
+    root = logging.getLogger()
     if root.level == logging.NOTSET or root.level > logging.INFO:
         root.setLevel(logging.INFO)

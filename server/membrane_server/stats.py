@@ -11,9 +11,12 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter, OrderedDict
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+
+from membrane_server.log_output import log_counts
 
 __all__ = ["Stats"]
 
@@ -47,6 +50,12 @@ class Stats:
         self.dropped: Counter[str] = Counter()
         # Requests whose handling raised out of the dispatcher (a bug; each is logged).
         self.failures = 0
+        self._figures: dict[str, Callable[[], Any]] = {}
+
+    def add_figures(self, name: str, figures: Callable[[], Any]) -> None:
+        """Add ``name`` to the snapshot, its value ``figures()`` when one is taken (the server's
+        peers, memory and reloads)."""
+        self._figures[name] = figures
 
     def record(
         self,
@@ -120,4 +129,6 @@ class Stats:
             "latency_us": self.recent_latency_us(),
             "dropped_replies": dict(self.dropped),
             "failures": self.failures,
+            "log": log_counts(),
+            **{name: figures() for name, figures in self._figures.items()},
         }

@@ -8,14 +8,17 @@ a failed test, never the machine.
 
 from __future__ import annotations
 
+import fcntl
+import json
 import queue
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import zmq
 
@@ -28,6 +31,16 @@ MiB = 1024 * 1024
 # The watchdog kills a server whose RSS passes this: no attack test needs a tenth of it.
 KILL_AT_BYTES = 1536 * MiB
 _START_TIMEOUT_S = 60.0  # a cold `membrane serve` imports scipy and onnxruntime
+# Requests carrying this in their payload make the server's request handling raise (a bug on
+# demand, for the tests of what a bug costs: one reply, one log line at most per kind).
+FAULT_MARK = b"inject-a-fault"
+# `membrane` with that bug: run it as WatchedServer(..., membrane=FAULTY_MEMBRANE).
+FAULTY_MEMBRANE = [
+    sys.executable,
+    "-c",
+    f"import sys; sys.path.insert(0, {str(Path(__file__).resolve().parent)!r}); "
+    "import attackers; attackers.serve_with_injected_faults()",
+]
 
 
 def rss_bytes(pid: int) -> int:
@@ -50,6 +63,10 @@ class WatchedServer:
         scenes: ``--scene`` values.
         extra: More `membrane serve` arguments.
         preexec: Run in the child before exec (e.g. to lower a resource limit).
+        membrane: The `membrane` command to run (default: this interpreter's; see
+            ``FAULTY_MEMBRANE``).
+        read_stderr: False leaves the server's stderr pipe unread until ``read_stderr()``.
+        stderr_pipe_bytes: Resize that pipe (Linux; at least a page).
     """
 
     def __init__(
@@ -58,8 +75,12 @@ class WatchedServer:
         extra: list[str] | None = None,
         kill_at: int = KILL_AT_BYTES,
         preexec: Callable[[], object] | None = None,
+        *,
+        membrane: list[str] | None = None,
+        read_stderr: bool = True,
+        stderr_pipe_bytes: int | None = None,
     ) -> None:
-        command = [*MEMBRANE, "-v", "serve", "--bind", "tcp://127.0.0.1:*"]
+        command = [*(membrane or MEMBRANE), "-v", "serve", "--bind", "tcp://127.0.0.1:*"]
         for scene in scenes:
             command += ["--scene", scene]
         self.process = subprocess.Popen(
@@ -69,14 +90,20 @@ class WatchedServer:
             text=True,
             preexec_fn=preexec,
         )
+        if stderr_pipe_bytes is not None:
+            assert self.process.stderr is not None
+            fcntl.fcntl(self.process.stderr.fileno(), fcntl.F_SETPIPE_SZ, stderr_pipe_bytes)
         self.log: list[str] = []
+        self.log_bytes = 0  # of stderr, read so far
         self._stdout: queue.Queue[str] = queue.Queue()
         self._kill_at = kill_at
         self.killed_for_memory = False
         self.peak = 0
         self._sampling = threading.Event()
         threading.Thread(target=self._pump_stdout, daemon=True).start()
-        threading.Thread(target=self._pump_stderr, daemon=True).start()
+        self._stderr_read = False
+        if read_stderr:
+            self.read_stderr()
         self.address = self._wait_listening()
         self.baseline = rss_bytes(self.process.pid)
         threading.Thread(target=self._watch, daemon=True).start()
@@ -109,6 +136,12 @@ class WatchedServer:
     def tracebacks(self) -> list[str]:
         return [line for line in self.log if "Traceback" in line]
 
+    def read_stderr(self) -> None:
+        """Start reading the server's stderr into ``log`` (once)."""
+        if not self._stderr_read:
+            self._stderr_read = True
+            threading.Thread(target=self._pump_stderr, daemon=True).start()
+
     def close(self) -> None:
         self._sampling.set()
         if self.alive:
@@ -137,6 +170,7 @@ class WatchedServer:
     def _pump_stderr(self) -> None:
         assert self.process.stderr is not None
         for line in self.process.stderr:
+            self.log_bytes += len(line.encode())
             self.log.append(line.rstrip("\n"))
 
     def _watch(self) -> None:
@@ -196,6 +230,89 @@ class GoodClient:
                         self.failures.append(f"t={t}: frame differs from the evaluator's")
                     self.answered += 1
                     time.sleep(0.002)
+
+
+def serve_with_injected_faults() -> None:
+    """Run the `membrane` command (arguments from ``sys.argv``) with a bug on demand: the
+    dispatcher raises RuntimeError on any request whose payload holds FAULT_MARK, so that the
+    server's own failure path (log, count, ``internal_error`` reply) runs. Test-only."""
+    from membrane_cli.dispatcher import main
+    from membrane_server.dispatch import Dispatcher
+
+    handle = Dispatcher.handle
+
+    def handle_or_fail(self: Dispatcher, body: Sequence[bytes], peer: str = "") -> Any:
+        if any(FAULT_MARK in bytes(part) for part in body):
+            raise RuntimeError("a fault injected by the test")
+        return handle(self, body, peer) if peer else handle(self, body)
+
+    Dispatcher.handle = handle_or_fail  # type: ignore[method-assign]
+    sys.exit(main(sys.argv[1:]))
+
+
+def request_loop(
+    address: str,
+    payload_hex: str,
+    count: int,
+    in_flight: int = 1,
+    seconds: float = 60.0,
+    pause_s: float = 0.0,
+    timeout_ms: int = 5000,
+) -> dict[str, Any]:
+    """Send one request ``count`` times (or for ``seconds``) from a DEALER, ``in_flight`` at a
+    time, ``pause_s`` after each reply; what came back: how many were sent and answered, the
+    error codes, the longest error message, and whether a reply failed to come (``stalled``).
+
+    Run it in a child process (``in_child``): a tight loop in the test's own process would take
+    the GIL from the good client's thread, and count as the server's fault."""
+    from membrane_client.protocol import decode
+
+    payload = bytes.fromhex(payload_hex)
+    socket = dealer(address, timeout_ms)
+    sent = answered = longest = 0
+    codes: dict[str, int] = {}
+    stalled = False
+    deadline = time.monotonic() + seconds
+    try:
+        while answered < count and not stalled:
+            while sent < count and sent - answered < in_flight and time.monotonic() < deadline:
+                socket.send_multipart([b"", payload])
+                sent += 1
+            if sent == answered:
+                break
+            try:
+                reply = decode(socket.recv_multipart()[-1])
+            except zmq.Again:
+                stalled = True
+                break
+            answered += 1
+            error = reply.get("error")
+            code = "ok" if not isinstance(error, dict) else str(error.get("code"))
+            codes[code] = codes.get(code, 0) + 1
+            if isinstance(error, dict):
+                longest = max(longest, len(str(error.get("message", ""))))
+            if pause_s:
+                time.sleep(pause_s)
+    finally:
+        socket.close()
+    return {"sent": sent, "answered": answered, "codes": codes, "longest_message": longest,
+            "stalled": stalled}  # fmt: skip
+
+
+def in_child(function: str, timeout: float = 120.0, **arguments: Any) -> Any:
+    """Run ``attackers.<function>(**arguments)`` in a child Python and return its result (JSON
+    both ways)."""
+    code = (
+        f"import sys, json; sys.path.insert(0, {str(Path(__file__).resolve().parent)!r}); "
+        f"import attackers; print(json.dumps(attackers.{function}(**json.loads(sys.argv[1]))))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code, json.dumps(arguments)],
+        capture_output=True, text=True, timeout=timeout, check=False,
+    )  # fmt: skip
+    if done.returncode != 0:
+        raise AssertionError(f"{function} failed in its child: {done.stderr[-2000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 # -- raw peers ---------------------------------------------------------------------------------
