@@ -156,3 +156,43 @@ def test_bad_input_is_a_user_error() -> None:
         solve_kirchhoff(STRING, [1e-3], [0.0], [1.0, 0.5])
     with pytest.raises(InvalidProblem, match="nonlinearity"):
         frequency_ratio(-0.5)
+
+
+# -- the registered problem: string-kirchhoff, as `membrane exact` solves it --------------------
+
+
+def test_string_kirchhoff_without_stretch_is_the_linear_plucked_string() -> None:
+    """stretch = 0 is the linear wave equation from the same smoothed pluck: d'Alembert's closed
+    form agrees to the 64-mode truncation of the pluck (its dropped tail, about 1e-9 here)."""
+    from membrane_models import exact_solution, make_problem
+
+    linear_k = exact_solution(make_problem("string-kirchhoff", {"stretch": "0"}))
+    plucked = exact_solution(
+        make_problem("string-plucked", {"smoothing": "0.02", "c": "1", "t_end": "2"})
+    )
+    x, t = np.linspace(0.0, 1.0, 101), np.linspace(0.0, 2.0, 41)
+    a, b = linear_k.grid(x, t), plucked.grid(x, t)
+    assert np.linalg.norm(a - b) / np.linalg.norm(b) < 1e-6
+    assert linear_k.truncation_error == 0.0 and linear_k.n_modes == 64
+
+
+def test_string_kirchhoff_stiffens_with_stretch_and_keeps_its_energy() -> None:
+    """With stretch the tension grows with the amplitude: the string comes back sooner than
+    the linear one's period 2 / c, and the Galerkin energy is conserved."""
+    from membrane_models import exact_solution, make_problem
+    from membrane_models.exact.kirchhoff_carrier import KirchhoffReference
+
+    problem = make_problem("string-kirchhoff", {"stretch": "400"})
+    solution = exact_solution(problem)
+    assert isinstance(solution, KirchhoffReference)
+    t = np.linspace(0.0, 2.0, 2001)
+    q = solution.amplitudes(t)
+    first = q[:, 0]
+    returns = t[1:][(np.diff(np.sign(first - first[0])) != 0)]
+    assert returns.size and returns[-1] < 2.0  # faster than the linear period
+    string = solution.string
+    energy = string.energy(q, np.gradient(q, t, axis=0))
+    assert np.ptp(energy[50:-50]) / energy[50:-50].mean() < 1e-3  # finite differences of q
+    # times in any order: the same state to the integrator's tolerance
+    later_first = solution.amplitudes([1.0, 0.5])[1]
+    np.testing.assert_allclose(later_first, solution.amplitudes([0.5])[0], rtol=0, atol=1e-12)

@@ -24,6 +24,7 @@ def test_registry_names() -> None:
         "string-plucked",
         "string-plucked-smooth",
         "membrane-forced",
+        "string-kirchhoff",
     }
 
 

@@ -6,7 +6,9 @@
   its modes chosen from the force's spectrum (``mode_selection``) so that the stated relative
   truncation error is at most ``rtol``;
 - plucked string (kinked or smoothed): d'Alembert's closed form (``plucked``), exact to rounding.
-  Its Fourier series, ``PluckedFourier``, is the independent cross-check.
+  Its Fourier series, ``PluckedFourier``, is the independent cross-check;
+- the Kirchhoff-Carrier string (``kirchhoff_carrier``): its Galerkin system, complete for the
+  problem's initial modes, integrated to ``rtol`` (at least 1e-13).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from membrane_models.exact.forced import ForcedModalSolution, forced_modal_solution
+from membrane_models.exact.kirchhoff_carrier import KirchhoffReference
 from membrane_models.exact.plucked import PluckedDAlembert, PluckedFourier
 from membrane_models.exact.solution import (
     ExactSolution,
@@ -22,7 +25,13 @@ from membrane_models.exact.solution import (
     MemoryBudgetExceeded,
     PointFrames,
 )
-from membrane_models.problems import MembraneForced, Problem, StringForced, StringPlucked
+from membrane_models.problems import (
+    MembraneForced,
+    Problem,
+    StringForced,
+    StringKirchhoff,
+    StringPlucked,
+)
 
 __all__ = [
     "DEFAULT_RTOL",
@@ -73,6 +82,11 @@ def _forced(problem: Problem, rtol: float, max_bytes: int | None) -> ExactSoluti
     return forced_modal_solution(problem, rtol, max_bytes)
 
 
+def _kirchhoff(problem: Problem, rtol: float, max_bytes: int | None) -> ExactSolution:
+    assert isinstance(problem, StringKirchhoff)
+    return KirchhoffReference(problem, rtol)
+
+
 # The registry, problem class -> builder(problem, rtol, max_bytes): a new problem with an exact
 # solution adds one entry here (as torchdiffeq's SOLVERS).
 ExactSolver = Callable[[Problem, float, "int | None"], ExactSolution]
@@ -80,4 +94,5 @@ EXACT_SOLVERS: dict[type[Problem], ExactSolver] = {
     StringForced: _forced,
     MembraneForced: _forced,
     StringPlucked: _plucked,
+    StringKirchhoff: _kirchhoff,
 }

@@ -29,10 +29,12 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import solve_ivp
 from scipy.special import ellipk
 
-from membrane_models.problems import InvalidProblem
+from membrane_models.exact.solution import ExactSolution, InvalidQuery, PointFrames, check_budget
+from membrane_models.problems import InvalidProblem, StringKirchhoff
 
 __all__ = [
     "DEFAULT_RTOL",
+    "KirchhoffReference",
     "KirchhoffSolution",
     "KirchhoffString",
     "frequency_ratio",
@@ -208,3 +210,45 @@ def _checked(
     if not (math.isfinite(rtol) and rtol > 0.0):
         raise InvalidProblem(f"rtol must be a positive number, got {rtol}")
     return q, p, times
+
+
+class KirchhoffReference(ExactSolution):
+    """The ``string-kirchhoff`` problem's solution: its Galerkin system integrated by DOP853.
+
+    The problem's initial shape lies in ``StringKirchhoff.MODES`` sine modes, which the motion
+    never leaves, so the series is complete: ``truncation_error`` is 0, and what remains is the
+    integrator's tolerance (``rtol``, relative to the motion's energy). Each call integrates from
+    t = 0 to the latest time asked for; ``on_points`` frames do the same per frame (a film of
+    this problem is for references and checks, not for serving at a simulator's rate).
+    """
+
+    def __init__(self, problem: StringKirchhoff, rtol: float = DEFAULT_RTOL) -> None:
+        self.problem = problem
+        self.string = KirchhoffString(problem.c, problem.stretch)
+        self.q0 = problem.initial_modes()
+        self.rtol = max(rtol, DEFAULT_RTOL)
+        self.n_modes = int(self.q0.size)
+        self.truncation_error = 0.0
+
+    def amplitudes(self, t: ArrayLike) -> FloatArray:
+        """q(t) for each time (any order): shape (nt, modes)."""
+        times = self.check_times(t)
+        if np.any(times < 0.0):
+            raise InvalidQuery(f"{self.problem.name}: times must be >= 0")
+        order = np.unique(times)
+        solved = solve_kirchhoff(self.string, self.q0, np.zeros_like(self.q0), order, self.rtol)
+        return solved.q[np.searchsorted(order, times)]
+
+    def at_points(self, points: ArrayLike, t: ArrayLike) -> FloatArray:
+        x = self.check_points(points)[:, 0]
+        return np.asarray(sine_basis(x, self.n_modes) @ self.amplitudes(t).T)
+
+    def on_points(self, points: ArrayLike, max_bytes: int | None = None) -> PointFrames:
+        x = self.check_points(points)[:, 0]
+        basis = sine_basis(x, self.n_modes)
+        check_budget("the Kirchhoff-Carrier frames' basis", int(basis.nbytes), max_bytes)
+
+        def frame(t: float) -> FloatArray:
+            return np.asarray(basis @ self.amplitudes([t])[0])
+
+        return PointFrames(frame, int(basis.nbytes), "dense")

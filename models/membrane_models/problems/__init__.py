@@ -13,7 +13,7 @@ from membrane_models.problems.base import InvalidProblem, Problem
 from membrane_models.problems.forcing import ForcedProblem, time_bump
 from membrane_models.problems.membrane import MembraneForced
 from membrane_models.problems.registry import PARAMETER_HELP, PROBLEMS, make_problem
-from membrane_models.problems.string import StringForced, StringPlucked
+from membrane_models.problems.string import StringForced, StringKirchhoff, StringPlucked
 
 __all__ = [
     "PARAMETER_HELP",
@@ -23,6 +23,7 @@ __all__ = [
     "MembraneForced",
     "Problem",
     "StringForced",
+    "StringKirchhoff",
     "StringPlucked",
     "make_problem",
     "time_bump",

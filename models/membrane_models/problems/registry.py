@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from membrane_models.problems.base import InvalidProblem, Problem
 from membrane_models.problems.membrane import MembraneForced
-from membrane_models.problems.string import StringForced, StringPlucked
+from membrane_models.problems.string import StringForced, StringKirchhoff, StringPlucked
 
 __all__ = ["PARAMETER_HELP", "PROBLEMS", "make_problem"]
 
@@ -20,6 +20,7 @@ PARAMETER_HELP: dict[str, str] = {
     "y0": "force centre on y, in (0, 1)",
     "height": "pluck height",
     "smoothing": "pluck smoothing: Gaussian standard deviation (0: a sharp kink)",
+    "stretch": "Kirchhoff-Carrier stretch coefficient: the tension is c^2 + stretch int u_x^2 dx",
 }
 
 # Registry: name -> (class, default overrides). The smoothed pluck is a named variant.
@@ -28,6 +29,7 @@ PROBLEMS: dict[str, tuple[type[Problem], dict[str, str]]] = {
     StringPlucked.name: (StringPlucked, {}),
     "string-plucked-smooth": (StringPlucked, {"smoothing": "0.02"}),
     MembraneForced.name: (MembraneForced, {}),
+    StringKirchhoff.name: (StringKirchhoff, {}),
 }
 
 

@@ -11,8 +11,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from membrane_models.problems.base import InvalidProblem, Problem, check_inside
 from membrane_models.problems.forcing import ForcedMixin, time_bump
+from membrane_models.problems.string_shapes import pluck
 
-__all__ = ["StringForced", "StringPlucked"]
+__all__ = ["StringForced", "StringKirchhoff", "StringPlucked"]
 
 FloatArray = NDArray[np.float64]
 
@@ -82,3 +83,39 @@ class StringPlucked(Problem):
         rising = self.height * x / self.x0
         falling = self.height * (1.0 - x) / (1.0 - self.x0)
         return np.where(x <= self.x0, rising, falling)
+
+
+@dataclass(frozen=True)
+class StringKirchhoff(Problem):
+    """u_tt = (c^2 + stretch S(t)) u_xx, S = int_0^1 u_x^2 dx: the Kirchhoff-Carrier string, whose
+    tension grows with its stretch (a slack rope at large amplitude), freed from a pluck.
+
+    Initial shape: the first ``MODES`` sine modes of the triangle of ``height`` with its apex at
+    ``x0``, smoothed by a Gaussian of standard deviation ``smoothing`` (``string_shapes.pluck``);
+    zero initial velocity. Shapes within those modes evolve within them exactly, so the
+    Galerkin reference (``exact.kirchhoff_carrier``) solves this problem, not an approximation
+    of it, to its integrator's tolerance. ``stretch`` = 0 is the linear plucked string.
+    """
+
+    name: ClassVar[str] = "string-kirchhoff"
+    spatial_dims: ClassVar[int] = 1
+    equation: ClassVar[str] = "u_tt = (c^2 + stretch int u_x^2 dx) u_xx"
+    MODES: ClassVar[int] = 64
+
+    c: float = 1.0
+    t_end: float = 2.0
+    stretch: float = 100.0
+    height: float = 0.05
+    x0: float = 0.3
+    smoothing: float = 0.02
+
+    def _check(self) -> None:
+        check_inside("x0", self.x0)
+        if self.smoothing < 0.0:
+            raise InvalidProblem(f"smoothing must be >= 0, got {self.smoothing}")
+        if self.stretch < 0.0:
+            raise InvalidProblem(f"stretch must be >= 0, got {self.stretch}")
+
+    def initial_modes(self) -> FloatArray:
+        """The initial shape's sine coefficients, modes 1 .. ``MODES``."""
+        return self.height * pluck(self.x0, self.MODES, self.smoothing)

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from membrane_models.problems import InvalidProblem
+from membrane_models.problems.base import InvalidProblem
 
 __all__ = ["FAMILIES", "ShapeParameters", "draw_shape", "pluck", "smoothing", "square_pulse"]
 
