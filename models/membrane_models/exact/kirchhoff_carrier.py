@@ -46,7 +46,7 @@ FloatArray = NDArray[np.float64]
 
 # DOP853's tolerance. solve_ivp bounds the RMS of the scaled errors, so one component may
 # exceed it by sqrt(components): at 1e-12, u_t (a sum over all modes' p_n) was 3e-10 off a
-# 2.5e-14 run; at 1e-13 u and u_t are within 3e-11 (tests/models/test_nonlinear_string.py).
+# 2.5e-14 run; at 1e-13 u and u_t are within 3e-11 (tests/models/exact/test_kirchhoff_carrier.py).
 DEFAULT_RTOL = 1e-13
 
 
