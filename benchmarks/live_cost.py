@@ -13,39 +13,38 @@ honest when the ratio stays at or below about 1 wherever the time matters, so th
 from __future__ import annotations
 
 import time
-from typing import Any
+from dataclasses import replace
 
 from membrane_models.live import Load, ModalEngine, ModalState, Probe
 from membrane_models.live.cost import StepBudget, step_cost
 from membrane_server.dispatch import ServedScene
 
-Item = dict[str, Any]
 _TOO_SLOW_TO_TIME = 60e6  # work units (about 60 ms)
 
 
-def cases(dims: int, min_radius: float) -> list[tuple[str, list[Item], list[Item]]]:
-    def at(i: int, spread: float = 0.005) -> list[float]:
-        return [0.3 + spread * i] * dims
+def cases(dims: int, min_radius: float) -> list[tuple[str, list[Load], list[Probe]]]:
+    def at(i: int, spread: float = 0.005) -> tuple[float, ...]:
+        return (0.3 + spread * i,) * dims
 
     out = []
     for radius in (0.05, 0.01, 4 * min_radius, 2 * min_radius, min_radius):
         for loads, probes in ((1, 0), (8, 0), (64, 0), (0, 1), (8, 8), (64, 8)):
             name = f"r={radius:.3g} loads={loads} probes={probes}"
-            ld = [{"at": at(i), "force": 1.0, "radius": radius} for i in range(loads)]
-            pr = [{"at": at(i, 0.05), "depth": 1e-3, "radius": radius} for i in range(probes)]
+            ld = [Load(at(i), 1.0, radius) for i in range(loads)]
+            pr = [Probe(at(i, 0.05), 1e-3, radius) for i in range(probes)]
             out.append((name, ld, pr))
-    centre = [0.5] * dims
-    out.append(("edge r=1 loads=1", [{"at": centre, "force": 1.0, "radius": 1.0}], []))
-    out.append(("edge r=10 loads=8", [{"at": centre, "force": 1.0, "radius": 10.0}] * 8, []))
+    centre = (0.5,) * dims
+    out.append(("edge r=1 loads=1", [Load(centre, 1.0, 1.0)], []))
+    out.append(("edge r=10 loads=8", [Load(centre, 1.0, 10.0)] * 8, []))
     return out
 
 
 def timed_step(
-    engine: ModalEngine, start: ModalState, loads: list[Item], probes: list[Item]
+    engine: ModalEngine, start: ModalState, loads: list[Load], probes: list[Probe]
 ) -> float:
     best = float("inf")
     for run in range(1, 4):
-        moved = [{**x, "at": [a + run * 1e-9 for a in x["at"]]} for x in loads]
+        moved = [replace(x, at=tuple(a + run * 1e-9 for a in x.at)) for x in loads]
         started = time.perf_counter()
         engine.step(start, moved, probes, frame=False)
         best = min(best, time.perf_counter() - started)
@@ -72,10 +71,8 @@ def report(scene: str) -> None:
     print(f"{scene}: budget {engine.budget.max_work / 1e6:g} ms")
     print(f"{'case':40} {'estimate':>9} {'step':>9} {'frame':>9} {'ratio':>6} {'held':>9}")
     for name, loads, probes in cases(engine.spatial_dims, engine.min_radius):
-        sizes = [unlimited._size(Load(tuple(x["at"]), 1.0, x["radius"]), "load", 0) for x in loads]
-        inside = [
-            unlimited._size(Probe(tuple(x["at"]), 0.0, x["radius"]), "probe", 0) for x in probes
-        ]
+        sizes = [unlimited._size(Load(x.at, 1.0, x.radius), "load", 0) for x in loads]
+        inside = [unlimited._size(Probe(x.at, 0.0, x.radius), "probe", 0) for x in probes]
         cost = step_cost(sizes, inside, unlimited.lattice_shape, True)
         if cost.work > _TOO_SLOW_TO_TIME:
             print(f"{name:40} {cost.work / 1e6:9.3f}   (refused; too slow to time)")

@@ -4,8 +4,9 @@ Published (seed-facts.md): STMsFFN [d+1]+[100]*3+[1] with its sigmas, Adam 1e-3 
 inverse-time decay (0.9 every 2000 steps), 1440 scattered collocation points resampled every
 step, soft initial conditions (applied at t = 0), no output scaling, float32. Ours: the
 shipped recipe (``membrane_models.learned.training.RECIPES``). Both train on this machine, one
-after the other, each for at most ``--budget`` seconds of training time; the relative L2 error against the exact
-solution on the standard grid is recorded every ``--every`` iterations (not counted in the time).
+after the other, each for at most ``--budget`` seconds of training time; the relative L2 error
+against the exact solution on the standard grid is recorded every ``--every`` iterations (not
+counted in the time).
 
 Writes ``OUT/results.json``, ``OUT/table.md`` and ``OUT/curves.png``. Problems already in
 ``OUT/results.json`` from an earlier run are kept (a rerun replaces only the problems it trains),

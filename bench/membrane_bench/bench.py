@@ -33,6 +33,7 @@ from membrane_bench.loadtest import (
 from membrane_client.client import Client
 from membrane_client.errors import MembraneError, Timeout, UserError
 from membrane_client.frame import SceneInfo
+from membrane_client.live_schema import Probe
 from membrane_client.protocol import Op, encode
 from membrane_client.session import Session
 
@@ -116,7 +117,7 @@ def _probe_live(client: Client, info: SceneInfo, frames: bool) -> Target:
     if not info.live:
         raise BenchError(f"scene {info.name} is not live: --payload step needs a live scene")
     centre = tuple(0.5 for _ in range(info.points.shape[1]))  # the middle of the unit domain
-    probe = {"at": list(centre), "depth": STEP_DEPTH, "radius": STEP_RADIUS}
+    probe = Probe(centre, STEP_DEPTH, STEP_RADIUS).to_wire()
     with Session(client, info.name).open() as session:
         reply = client.request(
             Op.STEP, scene=info.name, session=session.id, k=0, probes=[probe], frame=frames

@@ -40,6 +40,7 @@ from typing import Any, Literal, Protocol
 import zmq
 from hdrh.histogram import HdrHistogram
 
+from membrane_client.live_schema import Probe
 from membrane_client.protocol import Op, Request, peek_reply
 from membrane_errors import UserError
 
@@ -357,8 +358,7 @@ class _Channel:
         prefix = spec.session or ("bench" if self.live else None)
         self._session = None if prefix is None else f"{prefix}-{client}"
         self._steps = 0  # live: steps queued so far, the next step's k
-        probe = {"at": list(spec.probe_at), "depth": STEP_DEPTH, "radius": STEP_RADIUS}
-        self._probes = [probe]
+        self._probes = [Probe(spec.probe_at, STEP_DEPTH, STEP_RADIUS).to_wire()]
 
     def request_bytes(self, number: int) -> bytes:
         """Encode request ``number`` of this client (ids are per socket, so ``number`` is fine)."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -19,6 +20,7 @@ from membrane_client.client import Client
 from membrane_client.errors import MembraneError, ServerError, UserError
 from membrane_client.frame import Frame
 from membrane_client.protocol import ErrorCode
+from membrane_client.replies import HelloReply, StatsReply
 
 __all__ = ["add_ping", "add_query", "add_stats", "stats_summary"]
 
@@ -100,7 +102,7 @@ def _scene_hint(client: Client, scene: str | None) -> str:
     """What to do about an unknown_scene reply, in the command line's terms: the server's own
     message names the wire field ('scene'); here the fix is the --scene flag."""
     try:
-        hosted = ", ".join(str(name) for name in client.hello().get("scenes", []))
+        hosted = ", ".join(HelloReply.from_reply(client.hello()).scenes)
     except MembraneError:
         hosted = "?"  # the server stopped answering; the hint still says what to pass
     if scene is None:
@@ -112,16 +114,16 @@ def _run_ping(args: argparse.Namespace) -> int:
     try:
         with connect(args) as client:
             seconds = client.ping()
-            hello = client.hello()
+            hello = HelloReply.from_reply(client.hello())
     except UserError:
         raise  # bad input (an address, a key file): the dispatcher's one line, exit 2
     except MembraneError as exc:
         print(f"membrane ping: {args.connect}: {_one_line(exc)}", file=sys.stderr)
         return 1
-    scenes = ", ".join(str(name) for name in hello.get("scenes", []))
+    scenes = ", ".join(hello.scenes)
     print(
         f"pong from {args.connect} in {seconds * 1e3:.3f} ms "
-        f"({hello.get('server')}, protocol {hello.get('protocol')}, scenes: {scenes})"
+        f"({hello.server}, protocol {hello.protocol}, scenes: {scenes})"
     )
     return 0
 
@@ -130,29 +132,32 @@ def _run_stats(args: argparse.Namespace) -> int:
     try:
         with connect(args) as client:
             stats = client.stats()
+            typed = StatsReply.from_reply(stats)
     except UserError:
         raise  # bad input (an address, a key file): the dispatcher's one line, exit 2
     except MembraneError as exc:
         return _report_failure("stats", exc)
-    print(json.dumps(stats, indent=2, sort_keys=True) if args.json else stats_summary(stats))
+    print(json.dumps(stats, indent=2, sort_keys=True) if args.json else stats_summary(typed))
     return 0
 
 
-def stats_summary(stats: dict[str, Any]) -> str:
-    """The ``stats`` reply as a few lines for people; fields this version does not know about
-    are printed as they came, so that a newer server's figures are not hidden."""
+def stats_summary(stats: StatsReply | Mapping[str, Any]) -> str:
+    """The ``stats`` reply (typed, or its map) as a few lines for people; fields this version
+    does not know about are printed as they came, so that a newer server's figures are not
+    hidden."""
+    reply = stats if isinstance(stats, StatsReply) else StatsReply.from_reply(stats)
+    fields = reply.to_reply_fields()  # the figures alone, without the envelope
     known = {"uptime_s", "requests", "sessions", "ops", "scenes", "errors", "latency_us"}
-    known |= {"v", "id", "ok"}  # the reply's envelope, not figures
     lines = [
-        f"up {_duration(float(stats.get('uptime_s', 0.0)))}, {stats.get('requests', 0)} "
-        f"requests, {stats.get('sessions', 0)} sessions",
-        f"ops: {_counts(stats.get('ops'))}",
-        f"queries by scene: {_counts(stats.get('scenes'))}",
-        f"errors: {_counts(stats.get('errors'))}",
-        _latency_line(stats.get("latency_us") or {}),
+        f"up {_duration(float(reply.uptime_s or 0.0))}, {reply.requests or 0} "
+        f"requests, {reply.sessions or 0} sessions",
+        f"ops: {_counts(reply.ops)}",
+        f"queries by scene: {_counts(reply.scenes)}",
+        f"errors: {_counts(reply.errors)}",
+        _latency_line(reply.latency_us or {}),
     ]
-    for key in sorted(set(stats) - known):
-        value = stats[key]
+    for key in sorted(set(fields) - known):
+        value = fields[key]
         text = _counts(value) if isinstance(value, dict) else json.dumps(value)
         lines.append(f"{key.replace('_', ' ')}: {text}")
     return "\n".join(lines)

@@ -18,8 +18,9 @@ from membrane_client.client import DEFAULT_ADDRESS, Client
 from membrane_client.errors import MembraneError, ProtocolError, ServerError, Timeout, UserError
 from membrane_client.frame import Frame, SceneInfo
 from membrane_client.live_limits import InvalidInput, LiveLimits
+from membrane_client.live_schema import Load, Probe, ProbeReading
 from membrane_client.protocol import PROTOCOL_VERSION, ErrorCode
-from membrane_client.session import LiveFrame, Load, Probe, ProbeReading, Session
+from membrane_client.session import LiveFrame, Session
 
 __all__ = [
     "DEFAULT_ADDRESS",

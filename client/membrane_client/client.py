@@ -78,7 +78,8 @@ class Client:
     # -- the public operations ---------------------------------------------------------------
 
     def hello(self) -> dict[str, Any]:
-        """The server's protocol version, software version, ops, scenes and limits."""
+        """The server's protocol version, software version, ops, scenes and limits: the reply's
+        map (``replies.HelloReply.from_reply`` reads it typed)."""
         return self.request(Op.HELLO)
 
     def describe(self, scene: str | None = None, *, refresh: bool = False) -> SceneInfo:
@@ -118,7 +119,8 @@ class Client:
         return Session(self, scene or self.scene).open(**(initial or {}))
 
     def stats(self) -> dict[str, Any]:
-        """The server's counters and latency percentiles."""
+        """The server's counters and latency percentiles: the reply's map, printed as it came
+        by ``membrane stats --json`` (``replies.StatsReply.from_reply`` reads it typed)."""
         return self.request(Op.STATS)
 
     def ping(self) -> float:

@@ -10,8 +10,10 @@ limits = LiveLimits.from_live(info.live, dims=info.points.shape[1])
 probe = limits.check_probe(at, depth, radius)  # a Probe, or raises InvalidInput
 ```
 
-Bounds missing from ``live`` (an older server) fall back to the defaults below, the same as the
-server's own. Messages quote at most 64 characters of any value (``protocol.preview``).
+The items' form is the live schema's (``live_schema.Probe.checked``, ``Load.checked``: the same
+checks the server makes of their wire maps); this adds the scene's bounds. Bounds missing from
+``live`` (an older server) fall back to the schema's. Messages quote at most 64 characters of any
+value (``codec.preview``).
 """
 
 from __future__ import annotations
@@ -21,9 +23,18 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from membrane_client.errors import UserError
-from membrane_client.protocol import MAX_LOADS, MAX_PROBES, preview
-from membrane_client.session import Load, Probe
+from membrane_client.codec import preview
+from membrane_client.live_schema import (
+    MAX_DEPTH,
+    MAX_FORCE,
+    MAX_LOADS,
+    MAX_PROBES,
+    MAX_RADIUS,
+    LiveInputError,
+    Load,
+    Probe,
+    point,
+)
 
 __all__ = [
     "DEFAULT_MAX_DEPTH",
@@ -33,14 +44,13 @@ __all__ = [
     "LiveLimits",
 ]
 
-# The server's bounds (membrane_models.live.inputs) for a server whose describe omits them.
-DEFAULT_MAX_FORCE = 1e6
-DEFAULT_MAX_DEPTH = 1e3
-DEFAULT_MAX_RADIUS = 10.0
+# The schema's bounds, for a server whose describe omits them.
+DEFAULT_MAX_FORCE = MAX_FORCE
+DEFAULT_MAX_DEPTH = MAX_DEPTH
+DEFAULT_MAX_RADIUS = MAX_RADIUS
 
-
-class InvalidInput(UserError):
-    """A probe or load outside the scene's bounds (a one-line message, values quoted short)."""
+# A probe or load that breaks the schema or the scene's bounds: the schema's own error.
+InvalidInput = LiveInputError
 
 
 @dataclass(frozen=True)
@@ -80,23 +90,22 @@ class LiveLimits:
         ``max_depth`` tightens the depth bound (a caller's own, e.g. a slider's maximum).
         Raises ``InvalidInput`` naming the first field that is wrong.
         """
-        point = self.check_point(at, "probe")
-        limit = self.max_depth if max_depth is None else min(self.max_depth, max_depth)
-        value = _number(depth, "probe depth")
-        if not 0.0 <= value <= limit:
-            raise InvalidInput(f"probe depth must be in [0, {limit:.6g}], got {value:.6g}")
-        return Probe(point, value, self._radius(radius, "probe"))
+        return self._probe(Probe.checked(at, depth, radius, self.dims), max_depth)
+
+    def probe_from_wire(self, item: Any, *, max_depth: float | None = None) -> Probe:
+        """``check_probe`` of a probe's wire map (``live_schema.Probe.from_wire``)."""
+        return self._probe(Probe.from_wire(item, self.dims), max_depth)
 
     def check_load(self, at: Any, force: Any, radius: Any) -> Load:
         """A ``Load`` from untrusted values; its centre must lie in the unit domain."""
-        point = self.check_point(at, "load")
-        if not all(0.0 <= x <= 1.0 for x in point):
+        load = Load.checked(at, force, radius, self.dims)
+        if not all(0.0 <= x <= 1.0 for x in load.at):
             raise InvalidInput("load at must lie in the unit domain [0, 1]")
-        value = _number(force, "load force")
-        if abs(value) > self.max_force:
+        if abs(load.force) > self.max_force:
             limit = f"{self.max_force:.6g}"
-            raise InvalidInput(f"|load force| must be at most {limit}, got {value:.6g}")
-        return Load(point, value, self._radius(radius, "load"))
+            raise InvalidInput(f"|load force| must be at most {limit}, got {load.force:.6g}")
+        self._radius(load.radius, "load")
+        return load
 
     def check_count(self, probes: int = 0, loads: int = 0) -> None:
         """Refuse a step with more probes or loads than the scene takes."""
@@ -106,16 +115,17 @@ class LiveLimits:
             raise InvalidInput(f"at most {self.max_loads} loads per step, got {loads}")
 
     def check_point(self, at: Any, what: str) -> tuple[float, ...]:
-        """``dims`` finite numbers (a list or tuple of exactly that length)."""
-        if type(at) not in (list, tuple) or len(at) != self.dims:
-            count = len(at) if type(at) in (list, tuple) else -1
-            got = f"{count} value{'' if count == 1 else 's'}" if count >= 0 else preview(at)
-            plural = "s" if self.dims > 1 else ""
-            raise InvalidInput(f"{what} at must be {self.dims} number{plural}, got {got}")
-        return tuple(_number(x, f"{what} at") for x in at)
+        """``dims`` finite numbers (the schema's ``at``)."""
+        return point(at, self.dims, what)
 
-    def _radius(self, radius: Any, what: str) -> float:
-        value = _number(radius, f"{what} radius")
+    def _probe(self, probe: Probe, max_depth: float | None) -> Probe:
+        limit = self.max_depth if max_depth is None else min(self.max_depth, max_depth)
+        if not 0.0 <= probe.depth <= limit:
+            raise InvalidInput(f"probe depth must be in [0, {limit:.6g}], got {probe.depth:.6g}")
+        self._radius(probe.radius, "probe")
+        return probe
+
+    def _radius(self, value: float, what: str) -> None:
         if not self.min_radius <= value <= self.max_radius:
             raise InvalidInput(
                 f"{what} radius must be in [{self.min_radius:.6g}, {self.max_radius:.6g}], "
@@ -123,33 +133,6 @@ class LiveLimits:
             )
         if value == 0.0 and self.dims == 2:
             raise InvalidInput(f"{what} radius must be > 0 on a membrane (a point is singular)")
-        return value
-
-
-def _number(value: Any, what: str) -> float:
-    """A finite float from an int or float (never a bool, a string or a container)."""
-    if type(value) is float:
-        number = value
-    elif type(value) is int:
-        try:
-            number = float(value)
-        except OverflowError:
-            raise InvalidInput(f"{what} must be a finite number, got a huge integer") from None
-    else:
-        raise InvalidInput(f"{what} must be a number, got {_kind(value)}")
-    if not math.isfinite(number):
-        raise InvalidInput(f"{what} must be finite, got {preview(number)}")
-    return number
-
-
-def _kind(value: Any) -> str:
-    if isinstance(value, bool):
-        return f"a bool ({value})"
-    if value is None:
-        return "null"
-    if isinstance(value, str):
-        return f"a string {preview(value)}"
-    return preview(value) if isinstance(value, list | tuple | dict) else type(value).__name__
 
 
 def _count(value: Any, default: int) -> int:

@@ -1,7 +1,9 @@
-"""The wire codec, version 1: one msgpack map per message (spec: docs/PROTOCOL.md).
+"""The protocol, version 1: one msgpack map per message (spec: docs/PROTOCOL.md).
 
 Both sides use this module: the client to build requests and read replies, the server to read
-requests and build replies. It depends on msgpack and numpy only.
+requests and build replies. The codec under it (bounded decode, arrays, previews) is ``codec``,
+re-exported here; the live session's items and replies are ``live_schema``'s. It depends on
+msgpack and numpy only.
 """
 
 from __future__ import annotations
@@ -13,9 +15,20 @@ from enum import StrEnum
 from typing import Any, NoReturn
 
 import msgpack
-import numpy as np
 
+from membrane_client.codec import (
+    ARRAY_DTYPES,
+    MAX_ARRAY_DIMS,
+    MAX_NESTING,
+    MAX_REPLY_BYTES,
+    decode,
+    encode,
+    pack_array,
+    preview,
+    unpack_array,
+)
 from membrane_client.errors import ProtocolError, ServerError, UserError
+from membrane_client.live_schema import INITIAL_SHAPES, MAX_LOADS, MAX_PROBES
 
 __all__ = [
     "ARRAY_DTYPES",
@@ -50,29 +63,17 @@ __all__ = [
 
 PROTOCOL_VERSION = 1
 
-# Limits (docs/PROTOCOL.md, "Limits"). Requests are tiny maps; replies carry whole frames.
+# Limits (docs/PROTOCOL.md, "Limits"). Requests are tiny maps; replies carry whole frames
+# (MAX_REPLY_BYTES, the codec's). MAX_LOADS and MAX_PROBES per step are live_schema's.
 # 128 KiB: an `open` carries a live lattice's initial shapes (2 x 10,000 float32) in one message.
 MAX_REQUEST_BYTES = 128 * 1024
-MAX_REPLY_BYTES = 64 * 1024 * 1024
 MAX_LATTICE_POINTS = 65_536
 MAX_SESSION_CHARS = 64
 MAX_TOKEN_CHARS = 64  # a live Session's re-send token (``token``)
-# No array of the protocol has more than 2 axes (a lattice's frame); numpy stops at 64.
-MAX_ARRAY_DIMS = 8
 # An error reply's message: one line of at most this many characters (quoting at most
-# _PREVIEW_CHARS of any client value).
+# codec.PREVIEW_CHARS of any client value).
 MAX_ERROR_CHARS = 300
 MAX_LIVE_POINTS = 10_000  # a live scene's lattice (100 x 100)
-MAX_LOADS, MAX_PROBES = 64, 8  # per step
-# No message of the protocol nests deeper than 4 levels (a reply's describe fields); a bound well
-# above that keeps every walk over a decoded message, and every repr of one, shallow.
-MAX_NESTING = 32
-# How much of a client's value an error message or a log line shows.
-_PREVIEW_CHARS = 64
-
-# Little-endian float32 for displacements, float64 for coordinates (never lose digits of a time
-# or a position on the wire).
-ARRAY_DTYPES = ("<f4", "<f8")
 
 
 class Op(StrEnum):
@@ -116,65 +117,6 @@ class Domain(StrEnum):
     HELD = "held"
 
 
-def encode(message: Mapping[str, Any]) -> bytes:
-    """Serialise one message (a map with str keys) to msgpack bytes."""
-    data: bytes = msgpack.packb(dict(message), use_bin_type=True)
-    return data
-
-
-def decode(data: bytes, max_bytes: int = MAX_REPLY_BYTES) -> dict[str, Any]:
-    """Parse one message; raises ProtocolError unless it is a msgpack map with str keys, at most
-    ``max_bytes`` long and nested at most ``MAX_NESTING`` levels deep."""
-    if len(data) > max_bytes:
-        raise ProtocolError(f"a message of {len(data)} bytes, more than the limit {max_bytes}")
-    try:
-        # unpackb bounds every string, array and map inside by the message's own length.
-        message = msgpack.unpackb(data, raw=False, strict_map_key=True)
-    except Exception as exc:  # msgpack raises a zoo of types on garbage; all mean the same here
-        reason = preview(str(exc))
-        raise ProtocolError(f"not a msgpack message: {type(exc).__name__}: {reason}") from None
-    if not isinstance(message, dict):
-        raise ProtocolError(f"a message must be a msgpack map, got {type(message).__name__}")
-    nested = False
-    for key, value in message.items():  # one pass: requests are flat, so this is the hot path
-        if type(key) is not str:
-            raise ProtocolError("a message's keys must all be strings")
-        nested = nested or type(value) is dict or type(value) is list
-    if nested and _nesting_exceeds(message, MAX_NESTING):
-        raise ProtocolError(f"a message may nest at most {MAX_NESTING} levels deep")
-    return message
-
-
-def preview(value: Any) -> str:
-    """A short, bounded text for a value a peer sent: for error messages and log lines.
-
-    Containers are named, never formatted (a deep or large one would cost unbounded time and
-    memory, or a RecursionError); scalars are shown up to a fixed number of characters.
-    """
-    if isinstance(value, dict | list | tuple):
-        return f"{'a map' if isinstance(value, dict) else 'an array'} of {len(value)}"
-    if isinstance(value, str | bytes):
-        text = repr(value[:_PREVIEW_CHARS])
-        return text if len(value) <= _PREVIEW_CHARS else f"{text}... ({len(value)} long)"
-    text = repr(value)
-    return text if len(text) <= _PREVIEW_CHARS else text[:_PREVIEW_CHARS] + "..."
-
-
-def _nesting_exceeds(message: dict[str, Any], limit: int) -> bool:
-    """True when containers nest more than ``limit`` levels (level by level: no recursion)."""
-    level: list[Any] = [message]
-    for _ in range(limit):
-        inner = []
-        for container in level:
-            for value in container.values() if type(container) is dict else container:
-                if type(value) is dict or type(value) is list:
-                    inner.append(value)
-        if not inner:
-            return False
-        level = inner
-    return True
-
-
 class RequestError(UserError):
     """A request that breaks the protocol: the server answers it with ``code`` (and the id,
     when it could be read); ``request`` is its envelope (op, id, session) when that was valid."""
@@ -197,8 +139,10 @@ class Request:
     t: float | None = None
     dtype: str = "<f4"
     k: int | None = None  # step: the index of the step to take (the session's step count)
-    loads: list[Any] | None = None  # step: maps {at, force, radius}
-    probes: list[Any] | None = None  # step: maps {at, depth, radius}
+    # step: live_schema's Load and Probe maps, as sent: their form is checked against the
+    # scene's dimension (live_schema.loads_from_wire), once the step is known to apply
+    loads: list[Any] | None = None
+    probes: list[Any] | None = None
     frame: bool = True  # step: whether the reply carries the frame
     initial: dict[str, Any] | None = None  # open: {displacement, velocity} arrays
     token: str | None = None  # live ops: the Session object's own token (re-sends carry it)
@@ -291,7 +235,7 @@ class Request:
             self._refuse(ErrorCode.BAD_REQUEST, reason)
         self.token = token
         if self.op == Op.OPEN and (initial := message.get("initial")) is not None:
-            if type(initial) is not dict or not initial.keys() <= {"displacement", "velocity"}:
+            if type(initial) is not dict or not initial.keys() <= _INITIAL_SHAPES:
                 self._refuse(ErrorCode.BAD_REQUEST, "'initial' must map displacement/velocity")
             self.initial = initial
         if self.op != Op.STEP:
@@ -318,6 +262,7 @@ _OPS = frozenset(Op)
 _LIVE_OPS = frozenset((Op.OPEN, Op.STEP, Op.READ, Op.RESET, Op.CLOSE))
 _SCENE_OPS = frozenset((Op.DESCRIBE, Op.QUERY, *_LIVE_OPS))
 _SESSION = MAX_SESSION_CHARS
+_INITIAL_SHAPES = frozenset(INITIAL_SHAPES)
 
 
 def ok_reply(request_id: int | None, **fields: Any) -> dict[str, Any]:
@@ -337,46 +282,6 @@ def error_reply(request_id: int | None, code: ErrorCode | str, message: str) -> 
         "ok": False,
         "error": {"code": str(code), "message": text},
     }
-
-
-def pack_array(array: np.ndarray, dtype: str = "<f4") -> dict[str, Any]:
-    """Encode an array as ``{"dtype", "shape", "data"}`` (C order, little-endian)."""
-    if dtype not in ARRAY_DTYPES:
-        raise UserError(f"dtype must be one of {ARRAY_DTYPES}, got {dtype!r}")
-    values = np.ascontiguousarray(array, dtype=np.dtype(dtype))
-    return {"dtype": dtype, "shape": [int(n) for n in values.shape], "data": values.tobytes()}
-
-
-def unpack_array(obj: Any, max_dims: int = MAX_ARRAY_DIMS) -> np.ndarray:
-    """Decode an array map; raises ProtocolError if it is malformed.
-
-    The result is a read-only view of the message's bytes (no copy). Nothing of the client's
-    value is formatted whole: a dtype is quoted through ``preview``, a shape by its length.
-    """
-    if not isinstance(obj, dict):
-        raise ProtocolError(f"an array must be a map, got {type(obj).__name__}")
-    dtype, shape, data = obj.get("dtype"), obj.get("shape"), obj.get("data")
-    if dtype not in ARRAY_DTYPES:
-        raise ProtocolError(f"array dtype must be one of {ARRAY_DTYPES}, got {preview(dtype)}")
-    if not isinstance(shape, list) or not all(_is_count(n) for n in shape):
-        reason = f"array shape must be a list of non-negative ints, got {preview(shape)}"
-        raise ProtocolError(reason)
-    if len(shape) > max_dims:
-        raise ProtocolError(f"an array has at most {max_dims} axes, got {len(shape)}")
-    if not isinstance(data, bytes):
-        raise ProtocolError(f"array data must be bin, got {type(data).__name__}")
-    itemsize = np.dtype(dtype).itemsize
-    count = len(data) // itemsize
-    elements = 0 if 0 in shape else 1
-    for n in shape:  # stops once the product passes the data: never a huge integer
-        elements *= n
-        if elements > count:
-            break
-    if elements * itemsize != len(data):
-        raise ProtocolError(
-            f"array data is {len(data)} bytes, which does not fit its shape ({len(shape)} axes)"
-        )
-    return np.frombuffer(data, dtype=np.dtype(dtype)).reshape(shape)
 
 
 def check_reply(message: Mapping[str, Any], request_id: int) -> dict[str, Any]:
@@ -437,7 +342,3 @@ def peek_reply(data: bytes) -> tuple[int, str | None]:
     error = envelope.get("error")
     code = error.get("code") if isinstance(error, dict) else None
     return number, str(code) if code else "error_without_code"
-
-
-def _is_count(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0

@@ -12,6 +12,8 @@ A step carries the index ``k`` it expects to take, so a step the Lazy Pirate re-
 answered from the server's stored reply, never applied twice. Each Session object also sends
 its own random ``token`` on every live op: the server tells a re-send by the token, op and k,
 so two clients whose request ids coincide are never taken for one client re-sending.
+
+``Load``, ``Probe``, ``ProbeReading`` and the replies are the live schema's (``live_schema``).
 """
 
 from __future__ import annotations
@@ -19,51 +21,28 @@ from __future__ import annotations
 import secrets
 import uuid
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from membrane_client.errors import ProtocolError
 from membrane_client.frame import SceneInfo
-from membrane_client.protocol import Op, pack_array, unpack_array
+from membrane_client.live_schema import (
+    Initial,
+    LiveStepReply,
+    Load,
+    OpenReply,
+    Probe,
+    ProbeReading,
+    ResetReply,
+)
+from membrane_client.protocol import Op
 
 if TYPE_CHECKING:
     from membrane_client.client import Client
 
 __all__ = ["LiveFrame", "Load", "Probe", "ProbeReading", "Session"]
-
-
-class Load(NamedTuple):
-    """A Gaussian pressure of total ``force`` (> 0 pushes along +axis) centred ``at``."""
-
-    at: tuple[float, ...]  # (x,) on a string, (x, y) on a membrane, problem units
-    force: float
-    radius: float  # > 0 on a membrane; 0 is a point force on a string
-
-    def to_wire(self) -> dict[str, Any]:
-        return {"at": [float(a) for a in self.at], "force": self.force, "radius": self.radius}
-
-
-class Probe(NamedTuple):
-    """A rigid tip whose face is ``depth`` >= 0 below the rest surface, pressing along -axis."""
-
-    at: tuple[float, ...]
-    depth: float
-    radius: float
-
-    def to_wire(self) -> dict[str, Any]:
-        return {"at": [float(a) for a in self.at], "depth": self.depth, "radius": self.radius}
-
-
-class ProbeReading(NamedTuple):
-    """What a probe felt at the end of a step (NaN displacement and gap when ``outside``)."""
-
-    force: float  # contact force >= 0 (the tissue is pushed along -axis, the tool along +axis)
-    displacement: float  # the footprint-weighted displacement under the tip
-    gap: float  # >= 0, 0 in contact
-    in_contact: bool
-    outside: bool  # the tip's centre is outside the domain: nothing touched
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,15 +63,9 @@ class LiveFrame:
 
     @classmethod
     def from_reply(cls, reply: dict[str, Any], info: SceneInfo | None) -> LiveFrame:
-        try:
-            probes = tuple(ProbeReading(*(r[key] for key in _READING)) for r in reply["probes"])
-            z = unpack_array(reply["z"]) if "z" in reply else None
-            return cls(int(reply["k"]), float(reply["t"]), z, probes, info)
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ProtocolError(f"malformed live reply: {exc!r}") from None
-
-
-_READING = ProbeReading._fields
+        """From a ``step`` or ``read`` reply (``live_schema.LiveStepReply``)."""
+        read = LiveStepReply.from_reply(reply)
+        return cls(read.k, read.t, read.z, read.probes, info)
 
 
 class Session:
@@ -118,10 +91,9 @@ class Session:
         self, displacement: ArrayLike | None = None, velocity: ArrayLike | None = None
     ) -> Session:
         """Start the session from rest, or from shapes on the lattice (sent as float32)."""
-        shapes = {"displacement": displacement, "velocity": velocity}
-        initial = {k: pack_array(np.asarray(v), "<f4") for k, v in shapes.items() if v is not None}
-        reply = self._request(Op.OPEN, initial=initial or None)
-        self.k, self.residuals = int(reply["k"]), dict(reply.get("residuals", {}))
+        initial = Initial(_array(displacement), _array(velocity)).to_wire()
+        opened = OpenReply.from_reply(self._request(Op.OPEN, initial=initial))
+        self.k, self.residuals = opened.k, opened.residuals
         self.info = self.client.describe(self.scene)
         return self
 
@@ -140,7 +112,7 @@ class Session:
 
     def reset(self) -> None:
         """Back to the initial state, step 0."""
-        self.k = int(self._request(Op.RESET)["k"])
+        self.k = ResetReply.from_reply(self._request(Op.RESET)).k
 
     def close(self) -> None:
         """End the session on the server. Safe to call twice."""
@@ -162,3 +134,7 @@ class Session:
 
 def _wire(item: Any) -> Any:
     return item.to_wire() if isinstance(item, Load | Probe) else item
+
+
+def _array(values: ArrayLike | None) -> np.ndarray | None:
+    return None if values is None else np.asarray(values)

@@ -32,6 +32,7 @@ from membrane_client.protocol import (
     ok_reply,
     preview,
 )
+from membrane_client.replies import HelloReply, ServerLimits, StatsReply
 from membrane_models.live import LiveEngine, LiveError
 from membrane_server.engines import UnknownEngine
 from membrane_server.evaluators import Evaluator, build_evaluator
@@ -303,21 +304,22 @@ class Dispatcher:
     # -- ops ---------------------------------------------------------------------------------
 
     def _hello(self, request: Request) -> dict[str, Any]:
-        return {
-            "protocol": PROTOCOL_VERSION,
-            "server": server_version(),
-            "ops": self.ops,
-            "scenes": list(self.scenes),
-            "default_scene": self.default_scene,
-            "session": request.session,
-            "limits": {
-                "max_request_bytes": MAX_REQUEST_BYTES,
-                "max_lattice_points": MAX_LATTICE_POINTS,
-                "max_sessions": self.sessions.max_sessions,
-                "max_sessions_per_peer": self.sessions.max_per_peer,
-                "session_idle_s": self.sessions.idle_s,
-            },
-        }
+        limits = ServerLimits(
+            max_request_bytes=MAX_REQUEST_BYTES,
+            max_lattice_points=MAX_LATTICE_POINTS,
+            max_sessions=self.sessions.max_sessions,
+            max_sessions_per_peer=self.sessions.max_per_peer,
+            session_idle_s=self.sessions.idle_s,
+        )
+        return HelloReply(
+            protocol=PROTOCOL_VERSION,
+            server=server_version(),
+            ops=tuple(self.ops),
+            scenes=tuple(self.scenes),
+            default_scene=self.default_scene,
+            session=request.session,
+            limits=limits,
+        ).to_reply_fields()
 
     def _describe(self, request: Request) -> Prepared:
         return Prepared(self._scene(request).encoded_description, {})
@@ -333,7 +335,8 @@ class Dispatcher:
         return Prepared(fields, {"requested_t": t}, served.name)
 
     def _stats(self, request: Request) -> dict[str, Any]:
-        return {**self._stats_snapshot(), "live": self.sessions.snapshot()}
+        snapshot = self._stats_snapshot()
+        return StatsReply.from_snapshot(snapshot, self.sessions.snapshot()).to_reply_fields()
 
     def _ping(self, request: Request) -> dict[str, Any]:
         return {"pong": True, "time": time.time()}

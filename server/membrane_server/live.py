@@ -13,6 +13,10 @@ clients number their requests alike. Anything else is refused with the session's
 
 Fairness: each peer (a connection without CurveZMQ, a key with it) holds at most
 ``max_per_peer`` sessions, within the global ``max_sessions``.
+
+Every wire form is the client's live schema's (``membrane_client.live_schema``): a step's load
+and probe maps are read through it into the engine's own ``Load`` and ``Probe`` (the schema
+checks their form, the engine their values), and every reply is one of its reply forms.
 """
 
 from __future__ import annotations
@@ -26,21 +30,36 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from membrane_client.errors import ProtocolError
-from membrane_client.protocol import (
+from membrane_client import live_schema as schema
+from membrane_client.live_schema import (
     MAX_LOADS,
     MAX_PROBES,
+    STEP_UNITS,
+    CloseReply,
+    Initial,
+    LiveInputError,
+    LiveStepReply,
+    OpenReply,
+    ResetReply,
+)
+from membrane_client.protocol import (
     ErrorCode,
     Request,
     RequestError,
     decode,
     encode,
     ok_reply,
-    pack_array,
     preview,
-    unpack_array,
 )
-from membrane_models.live import LiveEngine, LiveError, ProbeReading, Start, StepResult
+from membrane_models.live import (
+    LiveEngine,
+    LiveError,
+    Load,
+    Probe,
+    ProbeReading,
+    Start,
+    StepResult,
+)
 from membrane_models.problems import Problem
 from membrane_server.engines import build_engine
 
@@ -56,8 +75,9 @@ __all__ = [
     "LiveSession",
     "SessionTable",
     "build_scene_engine",
+    "engine_inputs",
+    "input_error",
     "live_description",
-    "reading_fields",
     "wire_error",
 ]
 
@@ -85,12 +105,7 @@ def live_description(engine: LiveEngine[Any]) -> dict[str, Any]:
         "max_loads": MAX_LOADS,
         "max_probes": MAX_PROBES,
         "session_bytes": session_bytes(engine),
-        "units": {
-            "at": "problem units (lattice coordinates)",
-            "force": "total force, problem units; a load's > 0 pushes along +axis",
-            "depth": "below the rest surface, problem units (a probe presses along -axis)",
-            "k": "steps taken; t = k * dt",
-        },
+        "units": STEP_UNITS,
     }
 
 
@@ -101,15 +116,24 @@ def session_bytes(engine: LiveEngine[Any]) -> int:
     return 2 * engine.state_bytes + 2 * _REPLY_OVERHEAD + frame + _SESSION_OVERHEAD
 
 
-def reading_fields(reading: ProbeReading) -> dict[str, Any]:
-    """A probe's reading as the wire carries it."""
-    return {
-        "force": reading.force,
-        "displacement": reading.displacement,
-        "gap": reading.gap,
-        "in_contact": reading.in_contact,
-        "outside": reading.outside,
-    }
+def _reading(engine_reading: ProbeReading) -> schema.ProbeReading:
+    """An engine's probe reading in the schema's form (its wire map is ``to_wire()``)."""
+    r = engine_reading
+    return schema.ProbeReading(r.force, r.displacement, r.gap, r.in_contact, r.outside)
+
+
+def engine_inputs(request: Request, dims: int) -> tuple[tuple[Load, ...], tuple[Probe, ...]]:
+    """A step's wire loads and probes, read through the client's live schema (their maps'
+    form), as the engine's own types (whose values the engine checks)."""
+    try:
+        loads = schema.loads_from_wire(request.loads or (), dims)
+        probes = schema.probes_from_wire(request.probes or (), dims)
+    except LiveInputError as exc:
+        raise input_error(exc) from None
+    return (
+        tuple([Load(*load) for load in loads]),
+        tuple([Probe(*probe) for probe in probes]),
+    )
 
 
 class Sent(NamedTuple):
@@ -326,16 +350,12 @@ class LiveOps:
         if self.table.taken(session_id):  # another key's: say no more than that it is taken
             raise RequestError(ErrorCode.SESSION_EXISTS, "this session id is taken: pick another")
         start = _start(served.live, request.initial)
-        fields = {
-            "session": session_id,
-            "k": 0,
-            "t": 0.0,
-            "revision": served.revision,
-            "residuals": {
-                "displacement": start.displacement_residual,
-                "velocity": start.velocity_residual,
-            },
-        }
+        fields = OpenReply(
+            session=session_id,
+            revision=served.revision,
+            displacement_residual=start.displacement_residual,
+            velocity_residual=start.velocity_residual,
+        ).to_reply_fields()
         reply = encode(ok_reply(request.id, **fields))
         opened = Sent(request.token, request.id, reply)
         self.table.add(session_id, LiveSession(served, start, start.state, opened, peer))
@@ -357,15 +377,14 @@ class LiveOps:
             )
         engine = session.engine
         _require_inputs(engine, loads=request.loads, probes=request.probes)
+        loads, probes = engine_inputs(request, engine.spatial_dims)
         try:
-            result = engine.step(
-                session.state, request.loads or (), request.probes or (), frame=request.frame
-            )
+            result = engine.step(session.state, loads, probes, frame=request.frame)
         except LiveError as exc:
             raise wire_error(exc) from None
         session.apply(result)
         self.table.counts["steps"] += 1
-        fields = self._frame_fields(request, session, result.frame)
+        fields = self._state_reply(request, session, result.frame).to_reply_fields()
         reply = encode(ok_reply(request.id, **fields))
         session.last_step = Sent(request.token, request.id, reply)
         return reply
@@ -373,19 +392,21 @@ class LiveOps:
     def read(self, request: Request, peer: str = "") -> bytes:
         session = self._session(request, peer)
         frame = session.engine.frame(session.state)
-        fields = self._frame_fields(request, session, frame)
-        if session.last_step is not None and session.last_step.token is not None:
-            fields["token"] = session.last_step.token  # whose step this state follows
+        last = session.last_step  # whose step this state follows
+        token = None if last is None else last.token
+        fields = self._state_reply(request, session, frame, token).to_reply_fields()
         return encode(ok_reply(request.id, **fields))
 
     def reset(self, request: Request, peer: str = "") -> bytes:
         session = self._session(request, peer)
         session.reset()
-        return encode(ok_reply(request.id, session=request.session, k=0, t=0.0))
+        fields = ResetReply(_session_id(request)).to_reply_fields()
+        return encode(ok_reply(request.id, **fields))
 
     def close(self, request: Request, peer: str = "") -> bytes:
-        closed = self.table.close(_session_id(request), peer)
-        return encode(ok_reply(request.id, session=request.session, closed=closed))
+        session_id = _session_id(request)
+        closed = self.table.close(session_id, peer)
+        return encode(ok_reply(request.id, **CloseReply(session_id, closed).to_reply_fields()))
 
     def _session(self, request: Request, peer: str) -> LiveSession:
         session = self.table.require(_session_id(request), peer)
@@ -395,19 +416,21 @@ class LiveOps:
         return session
 
     @staticmethod
-    def _frame_fields(
-        request: Request, session: LiveSession, frame: np.ndarray | None
-    ) -> dict[str, Any]:
-        fields: dict[str, Any] = {
-            "session": request.session,
-            "k": session.k,
-            "t": session.t,
-            "revision": session.served.revision,
-            "probes": [reading_fields(reading) for reading in session.readings],
-        }
-        if frame is not None:
-            fields["z"] = pack_array(np.reshape(frame, session.served.shape), "<f4")
-        return fields
+    def _state_reply(
+        request: Request,
+        session: LiveSession,
+        frame: np.ndarray | None,
+        token: str | None = None,
+    ) -> LiveStepReply:
+        return LiveStepReply(
+            session=_session_id(request),
+            k=session.k,
+            t=session.t,
+            revision=session.served.revision,
+            probes=tuple([_reading(r) for r in session.readings]),
+            z=None if frame is None else np.reshape(frame, session.served.shape),
+            token=token,
+        )
 
 
 def _session_id(request: Request) -> str:
@@ -419,6 +442,12 @@ def wire_error(exc: LiveError, what: str = "") -> RequestError:
     """The one place an engine's refusal becomes a wire error: ``bad_request`` with the
     engine's message (its errors quote client values bounded; ``error_reply`` caps the length)."""
     return RequestError(ErrorCode.BAD_REQUEST, f"{what}{exc}")
+
+
+def input_error(exc: LiveInputError) -> RequestError:
+    """The live schema's refusal of a wire item as a wire error: ``bad_request`` with its
+    message (which quotes client values bounded)."""
+    return RequestError(ErrorCode.BAD_REQUEST, str(exc))
 
 
 def _require_inputs(engine: LiveEngine[Any], **given: object) -> None:
@@ -433,13 +462,11 @@ def _require_inputs(engine: LiveEngine[Any], **given: object) -> None:
 
 def _start(engine: LiveEngine[Any], initial: dict[str, Any] | None) -> Start[Any]:
     _require_inputs(engine, initial=initial)
-    shapes = {}
-    for name, packed in (initial or {}).items():
-        try:
-            shapes[name] = unpack_array(packed).reshape(-1)
-        except ProtocolError as exc:
-            raise RequestError(ErrorCode.BAD_REQUEST, f"initial {name}: {exc}") from None
     try:
-        return engine.start(shapes.get("displacement"), shapes.get("velocity"))
+        shapes = Initial.from_wire(initial)
+    except LiveInputError as exc:
+        raise input_error(exc) from None
+    try:
+        return engine.start(shapes.displacement, shapes.velocity)
     except LiveError as exc:
         raise wire_error(exc, "initial: ") from None

@@ -1,4 +1,7 @@
-"""Loads {at, force, radius}: static limits against closed forms, linearity, and bad input."""
+"""Loads (at, force, radius): static limits against closed forms, linearity, and bad values.
+
+The engine takes its own ``Load``; the form of a load's wire map is the client's live schema's
+to check (tests/client/test_live_schema.py)."""
 
 from __future__ import annotations
 
@@ -108,7 +111,7 @@ def test_larger_than_the_domain_load_presses_mostly_on_the_support() -> None:
 def test_loads_superpose() -> None:
     engine = ModalEngine(MEMBRANE, 20, 0.004)
     first = [Load((0.2, 0.7), 0.3, 0.05)]
-    second = [{"at": [0.6, 0.45], "force": -0.2, "radius": 0.1}]
+    second = [Load((0.6, 0.45), -0.2, 0.1)]
     both = _held(engine, [*first, *second], 50)
     apart = _held(engine, first, 50) + _held(engine, second, 50)
     np.testing.assert_allclose(both, apart, rtol=0, atol=1e-12 * np.abs(both).max())
@@ -128,28 +131,32 @@ def test_first_order_hold_ramps_from_the_last_steps_loads() -> None:
     assert abs(diff) < 0.2 * zoh.energy(z)
 
 
+def _load(at: Any, force: Any, radius: Any) -> Any:
+    """A Load with fields of any type: what a caller may pass, whatever the annotations say."""
+    return Load(at, force, radius)
+
+
 BAD_LOADS: list[tuple[Any, str]] = [
-    ({"at": [0.5, 0.5], "force": math.nan, "radius": 0.05}, "finite"),
-    ({"at": [0.5, 0.5], "force": math.inf, "radius": 0.05}, "finite"),
-    ({"at": [0.5, 0.5], "force": -math.inf, "radius": 0.05}, "finite"),
-    ({"at": [0.5, math.nan], "force": 1.0, "radius": 0.05}, "finite"),
-    ({"at": [0.5, 0.5], "force": 1.0, "radius": 0.0}, "logarithmically singular"),
-    ({"at": [0.5, 0.5], "force": 1.0, "radius": 1e-3}, "smallest"),
-    ({"at": [0.5, 0.5], "force": 1.0, "radius": -0.1}, ">= 0"),
-    ({"at": [1.2, 0.5], "force": 1.0, "radius": 0.05}, "outside"),
-    ({"at": [0.5], "force": 1.0, "radius": 0.05}, "2 coordinates"),
-    ({"at": [0.5, 0.5], "force": "1", "radius": 0.05}, "number"),
-    ({"at": [0.5, 0.5], "force": True, "radius": 0.05}, "number"),
-    ({"at": [0.5, 0.5], "force": 1.0}, "keys"),
-    ({"at": [0.5, 0.5], "force": 1.0, "radius": 0.05, "extra": 1}, "keys"),
-    ([0.5, 0.5, 1.0], "map"),
     (Load((0.5, 0.5), math.nan, 0.05), "finite"),
-    ({"at": [0.5, 0.5], "force": 1e308, "radius": 0.05}, "at most 1e"),
-    ({"at": [0.5, 0.5], "force": 2**63, "radius": 0.05}, "at most 1e"),
+    (Load((0.5, 0.5), math.inf, 0.05), "finite"),
+    (Load((0.5, 0.5), -math.inf, 0.05), "finite"),
+    (Load((0.5, math.nan), 1.0, 0.05), "finite"),
+    (Load((0.5, 0.5), 1.0, 0.0), "logarithmically singular"),
+    (Load((0.5, 0.5), 1.0, 1e-3), "smallest"),
+    (Load((0.5, 0.5), 1.0, -0.1), ">= 0"),
+    (Load((1.2, 0.5), 1.0, 0.05), "outside"),
+    (Load((0.5,), 1.0, 0.05), "2 coordinates"),
+    (_load((0.5, 0.5), "1", 0.05), "number"),
+    (_load((0.5, 0.5), True, 0.05), "number"),
+    ([0.5, 0.5, 1.0], "must be a Load, got list"),
+    ({"at": [0.5, 0.5], "force": 1.0, "radius": 0.05}, "must be a Load, got dict"),  # a wire map
+    (Load((0.5, 0.5), 1e308, 0.05), "at most 1e"),
+    (_load((0.5, 0.5), 2**63, 0.05), "at most 1e"),
+    (_load((0.5, 0.5), 10**400, 0.05), "finite"),
     (Load((0.5, 0.5), -1e7, 0.05), "at most 1e"),
-    ({"at": [0.5, 0.5], "force": 1.0, "radius": 1e-310}, "smallest"),
-    ({"at": [0.5, 0.5], "force": 1.0, "radius": 5e-324}, "smallest"),
-    ({"at": [0.5, 0.5], "force": 1.0, "radius": 1e9}, "at most 10"),
+    (Load((0.5, 0.5), 1.0, 1e-310), "smallest"),
+    (Load((0.5, 0.5), 1.0, 5e-324), "smallest"),
+    (Load((0.5, 0.5), 1.0, 1e9), "at most 10"),
 ]
 
 
@@ -187,10 +194,12 @@ def test_too_many_loads_and_a_string_radius_below_the_smallest() -> None:
 def test_loads_accept_scalar_at_on_the_string_and_numpy_numbers() -> None:
     engine = ModalEngine(STRING, 100, 0.01)
     state = engine.start().state
-    a = engine.step(state, [{"at": 0.4, "force": np.float64(0.2), "radius": 0.0}]).frame
+    a = engine.step(state, [_load(0.4, np.float64(0.2), 0)]).frame
     b = engine.step(state, [Load((0.4,), 0.2, 0.0)]).frame
-    assert a is not None and b is not None
+    c = engine.step(state, [_load(np.array([0.4]), np.float32(0.2), np.int64(0))]).frame
+    assert a is not None and b is not None and c is not None
     np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(c, b, rtol=1e-7, atol=0)  # float32(0.2) is not quite 0.2
 
 
 def test_a_step_over_the_cost_budget_is_refused_with_its_figure() -> None:

@@ -111,13 +111,15 @@ def test_a_huge_depth_is_linear_and_finite() -> None:
 
 BAD_PROBES: list[tuple[Any, str]] = [
     (Probe((0.5, 0.5), -1e-6, 0.05), "depth must be >= 0"),
-    ({"at": [0.5, 0.5], "depth": math.nan, "radius": 0.05}, "finite"),
-    ({"at": [0.5, 0.5], "depth": math.inf, "radius": 0.05}, "finite"),
-    ({"at": [math.inf, 0.5], "depth": 0.0, "radius": 0.05}, "finite"),
-    ({"at": [0.5, 0.5], "depth": 1e-5, "radius": 0.0}, "logarithmically singular"),
-    ({"at": [0.5, 0.5], "depth": 1e-5, "radius": 1e-3}, "smallest"),
-    ({"at": [0.5, 0.5], "depth": 1e-5}, "keys"),
-    ("probe", "map"),
+    (Probe((0.5, 0.5), math.nan, 0.05), "finite"),
+    (Probe((0.5, 0.5), math.inf, 0.05), "finite"),
+    (Probe((math.inf, 0.5), 0.0, 0.05), "finite"),
+    (Probe((0.5, 0.5), 1e-5, 0.0), "logarithmically singular"),
+    (Probe((0.5, 0.5), 1e-5, 1e-3), "smallest"),
+    (Probe((0.5, 0.5), 2e3, 0.05), "depth must be at most 1000"),
+    (Probe((0.5,), 1e-5, 0.05), "2 coordinates"),
+    ("probe", "must be a Probe, got str"),
+    ({"at": [0.5, 0.5], "depth": 1e-5, "radius": 0.05}, "must be a Probe, got dict"),  # a wire map
 ]
 
 

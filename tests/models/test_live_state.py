@@ -155,9 +155,7 @@ def test_the_mode_count_rule() -> None:
 def test_the_interface_is_what_a_modal_engine_offers() -> None:
     engine: LiveEngine[ModalState] = ModalEngine(MEMBRANE, 20, 0.01)  # checked by mypy
     assert engine.spatial_dims == 2 and engine.lattice_shape == (20, 20) and engine.dt == 0.01
-    result = engine.step(
-        engine.start().state, [], [{"at": (0.5, 0.5), "depth": 0.0, "radius": 0.1}]
-    )
+    result = engine.step(engine.start().state, [], [Probe((0.5, 0.5), 0.0, 0.1)])
     assert result.frame is not None and result.frame.shape == (400,)
     assert engine.frame(result.state).shape == (400,)
     described = ModalEngine(MEMBRANE, 20, 0.01).describe()

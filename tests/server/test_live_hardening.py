@@ -156,18 +156,18 @@ def test_one_peer_cannot_take_every_session(dispatcher: Dispatcher) -> None:
 # -- a session's memory within what describe says ---------------------------------------------
 
 
-def _worst_legal_step(engine: ModalEngine) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+def _worst_legal_step(engine: ModalEngine) -> tuple[list[WireLoad], list[Probe]]:
     """The accepted step that holds the most spectra: the most loads and probes at the
     smallest radius the budget lets through."""
     dims = engine.spatial_dims
-    best: tuple[int, list[dict[str, Any]], list[dict[str, Any]]] = (-1, [], [])
+    best: tuple[int, list[WireLoad], list[Probe]] = (-1, [], [])
     for factor in (1, 2, 4, 8, 16, 32, 64, 128):
         radius = engine.min_radius * factor
         for count in (MAX_LOADS, 32, 16, 8, 4, 2, 1):
             load_at = [(0.2 + 0.6 * i / MAX_LOADS,) * dims for i in range(count)]
             probe_at = [(0.1 + 0.1 * j,) * dims for j in range(MAX_PROBES)]
-            loads = [{"at": list(a), "force": 1.0, "radius": radius} for a in load_at]
-            probes = [{"at": list(a), "depth": 1e-3, "radius": radius} for a in probe_at]
+            loads = [WireLoad(a, 1.0, radius) for a in load_at]
+            probes = [Probe(a, 1e-3, radius) for a in probe_at]
             sizes = [engine._size(Load(a, 1.0, radius), "load", 0) for a in load_at]
             inside = [engine._size(EngineProbe(a, 0.0, radius), "probe", 0) for a in probe_at]
             cost = step_cost(sizes, inside, engine.lattice_shape, True)
@@ -192,7 +192,9 @@ def test_session_bytes_bounds_a_sessions_measured_memory(
     loads, probes = _worst_legal_step(engine)
     client = _client(Dispatcher([served], sessions=SessionTable()))
     claimed = client.describe(name).live["session_bytes"]
-    engine.step(engine.start().state, loads, probes)  # tables and caches grown beforehand
+    engine_loads = [Load(*load) for load in loads]
+    engine_probes = [EngineProbe(*probe) for probe in probes]
+    engine.step(engine.start().state, engine_loads, engine_probes)  # tables, caches grown first
     tracemalloc.start()
     try:
         before = tracemalloc.get_traced_memory()[0]

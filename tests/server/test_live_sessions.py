@@ -18,7 +18,9 @@ from membrane_client.protocol import (
     decode,
     pack_array,
 )
+from membrane_models.live import Load as EngineLoad
 from membrane_models.live import ModalEngine
+from membrane_models.live import Probe as EngineProbe
 from membrane_models.problems import make_problem
 from membrane_server.dispatch import Dispatcher, ServedScene
 from membrane_server.in_process import InProcessTransport
@@ -245,15 +247,13 @@ def test_the_wire_session_follows_the_engine_exactly(membrane_live: ServedScene)
     """What a session serves is the engine's own answer, to float32 rounding of the frame."""
     engine = ModalEngine(make_problem("membrane-forced"), (20, 20), 0.001, damping=0.02)
     state = engine.start().state
-    plan: list[dict[str, Any]] = [
-        {"loads": [Load((0.3, 0.6), 0.02 * (k % 7), 0.05).to_wire()], "probes": [PROBE.to_wire()]}
-        for k in range(50)
-    ]
+    plan = [([Load((0.3, 0.6), 0.02 * (k % 7), 0.05)], [PROBE]) for k in range(50)]
     with _client(membrane_live) as client, client.session() as session:
-        for inputs in plan:
-            result = engine.step(state, **inputs)
+        for loads, probes in plan:
+            own = [EngineLoad(*load) for load in loads], [EngineProbe(*probe) for probe in probes]
+            result = engine.step(state, *own)
             state = result.state
-            frame = session.step(**inputs)
+            frame = session.step(loads, probes)  # on the wire, through the live schema
             assert frame.probes[0].force == result.probes[0].force
             assert frame.z is not None and result.frame is not None
             np.testing.assert_array_equal(frame.z.reshape(-1), result.frame.astype("<f4"))

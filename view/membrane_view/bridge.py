@@ -14,11 +14,12 @@ client blocks, the event loop must not) and pushes:
 - ``{"type": "error", "message": ...}`` when the server is unreachable or a session expired; the
   bridge retries once a second and says ``{"type": "status", ...}`` when it is back.
 
-The page sends JSON text: ``{"type": "press", "at": [x, y], "depth": d, "radius": r}`` (lattice
-coordinates, problem units) while the pointer is down, ``{"type": "release"}`` when it is up,
-and ``{"type": "reset"}``. Each is checked (``page_input``: size, nesting, the scene's bounds
-through ``LiveLimits``, the depth within the slider's range); a bad one is answered with
-``{"type": "error", "source": "page", ...}`` and changes nothing, the session kept.
+The page sends JSON text: a press, ``{"type": "press"}`` with a probe's wire map besides
+(``live_schema.Probe``: lattice coordinates, problem units), while the pointer is down,
+``{"type": "release"}`` when it is up, and ``{"type": "reset"}``. Each is checked
+(``page_input``: size, nesting, the scene's bounds through ``LiveLimits``, the depth within the
+slider's range); a bad one is answered with ``{"type": "error", "source": "page", ...}`` and
+changes nothing, the session kept.
 
 Who may talk to it (``guard``): the page and its WebSocket are the user's session on the
 tissue, and any web page the user visits can send requests to 127.0.0.1. So every request must
@@ -53,8 +54,10 @@ from membrane_client.curve import SocketOptions
 from membrane_client.errors import ServerError, Timeout
 from membrane_client.frame import SceneInfo
 from membrane_client.live_limits import LiveLimits
+from membrane_client.live_schema import Probe
 from membrane_client.protocol import ErrorCode
-from membrane_client.session import Probe, Session
+from membrane_client.replies import StatsReply
+from membrane_client.session import Session
 from membrane_errors import MembraneError
 from membrane_view.guard import guard, new_token, security_headers
 from membrane_view.page_input import PageInputError, error_message, parse_page_message
@@ -417,13 +420,13 @@ class Player:
 
     def _stats(self) -> dict[str, Any]:
         assert self.client is not None
-        stats = self.client.stats()
-        latency = stats.get("latency_us", {})
+        stats = StatsReply.from_reply(self.client.stats())
+        latency = stats.latency_us or {}
         return {
-            "requests": stats.get("requests"),
+            "requests": stats.requests,
             "latency_us": {q: latency.get(q) for q in ("p50", "p99", "max")},
-            "live_steps": stats.get("live", {}).get("steps"),
-            "uptime_s": stats.get("uptime_s"),
+            "live_steps": (stats.live or {}).get("steps"),
+            "uptime_s": stats.uptime_s,
         }
 
 

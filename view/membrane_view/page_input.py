@@ -5,6 +5,7 @@ WebSocket, and a bad probe passed on would cost a server round trip or the sessi
 text message is bounded in size and nesting before it is parsed (``json.loads`` recurses, and
 a deep array raised RecursionError out of the receive loop), and a press goes through the
 client's ``LiveLimits`` with the scene's own bounds, its depth within the slider's range.
+A press is a probe's wire map (``live_schema.Probe``) plus its ``type``, and is read as one.
 A refused message is answered with one short error and changes nothing.
 """
 
@@ -15,8 +16,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from membrane_client.live_limits import LiveLimits
+from membrane_client.live_schema import PROBE_KEYS, Probe
 from membrane_client.protocol import preview
-from membrane_client.session import Probe
 from membrane_errors import UserError
 
 __all__ = [
@@ -31,9 +32,10 @@ __all__ = [
 ]
 
 MAX_MESSAGE_CHARS = 4096  # the page's messages are under 200 characters
-MAX_NESTING = 4  # the page's deepest is 2 ({"at": [x, y]})
+MAX_NESTING = 4  # the page's deepest is 2 (a press's coordinates)
 MAX_ERROR_CHARS = 300
-_PRESS_KEYS = frozenset({"type", "at", "depth", "radius"})
+_PROBE_KEYS = frozenset(PROBE_KEYS)
+_PROBE_NAMES = f"{', '.join(PROBE_KEYS[:-1])} and {PROBE_KEYS[-1]}"
 _KINDS = ("press", "release", "reset")
 
 
@@ -87,18 +89,17 @@ def parse_page_message(
         if len(message) > 1:
             raise PageInputError(f"{kind} takes no fields besides type ({len(message) - 1} sent)")
         return PageMessage(kind)
-    if message.keys() != _PRESS_KEYS:
-        missing = sorted(_PRESS_KEYS - message.keys())
-        extra = len(message.keys() - _PRESS_KEYS)
+    fields = {key: value for key, value in message.items() if key != "type"}
+    if fields.keys() != _PROBE_KEYS:
+        missing = sorted(_PROBE_KEYS - fields.keys())
+        extra = len(fields.keys() - _PROBE_KEYS)
         raise PageInputError(
-            f"press takes exactly at, depth and radius (missing {missing}, {extra} other)"
+            f"press takes exactly {_PROBE_NAMES} (missing {missing}, {extra} other)"
         )
     if limits is None:
         raise PageInputError(no_press)
     try:
-        probe = limits.check_probe(
-            message["at"], message["depth"], message["radius"], max_depth=max_depth
-        )
+        probe = limits.probe_from_wire(fields, max_depth=max_depth)
     except UserError as exc:
         raise PageInputError(str(exc)) from None
     return PageMessage("press", probe)

@@ -1,6 +1,10 @@
-"""Checking what a caller sends: loads, probes and shapes, before anything is computed.
+"""Checking the engine's inputs, ``Load`` and ``Probe``, before anything is computed: finite
+values in range, centres of the engine's dimension (a load's in the domain).
 
-Messages quote numbers with ``%.6g`` and types by name only, so that nothing a peer sends is
+The engine takes its own types only; a wire map becomes one in the server, through the client's
+live schema, which also owns the per-step limits the protocol states (a test ties these to it).
+Fields of other number types (numpy scalars, ints, a list or array for ``at``) are converted.
+Messages quote numbers with ``%.6g`` and types by name only, so that nothing a caller passes is
 formatted unbounded into an error. Counts are bounded: a step costs at most ``MAX_LOADS`` loads
 and ``MAX_PROBES`` probes (the contact problem is solved exactly, by enumeration at worst).
 """
@@ -10,11 +14,12 @@ from __future__ import annotations
 import math
 import numbers
 from collections.abc import Mapping, Sequence
+from typing import TypeVar
 
 import numpy as np
 
 from membrane_models.live.errors import InvalidLoad, InvalidProbe, LiveError
-from membrane_models.live.interface import Load, LoadLike, Probe, ProbeLike
+from membrane_models.live.interface import Load, Probe
 
 __all__ = [
     "MAX_DEPTH",
@@ -35,11 +40,10 @@ MAX_PROBES = 8
 MAX_FORCE = 1e6
 MAX_DEPTH = 1e3
 MAX_RADIUS = 10.0  # wider, a Gaussian is uniform over the domain to within 1 %
-_LOAD_KEYS = frozenset({"at", "force", "radius"})
-_PROBE_KEYS = frozenset({"at", "depth", "radius"})
+_Item = TypeVar("_Item", Load, Probe)
 
 
-def parse_loads(loads: Sequence[LoadLike], dims: int) -> tuple[Load, ...]:
+def parse_loads(loads: Sequence[Load], dims: int) -> tuple[Load, ...]:
     """``loads`` as checked ``Load`` objects (finite force, radius >= 0, centre in the domain).
 
     Raises:
@@ -57,20 +61,20 @@ def parse_loads(loads: Sequence[LoadLike], dims: int) -> tuple[Load, ...]:
         ):
             out.append(item)
             continue
-        fields = _fields(item, Load, _LOAD_KEYS, f"load {index}", InvalidLoad)
-        at = _point(fields["at"], dims, f"load {index}", InvalidLoad)
-        force = _number(fields["force"], f"load {index} force", InvalidLoad)
+        load = _typed(item, Load, f"load {index}", InvalidLoad)
+        at = _point(load.at, dims, f"load {index}", InvalidLoad)
+        force = _number(load.force, f"load {index} force", InvalidLoad)
         if abs(force) > MAX_FORCE:
             reason = f"|force| must be at most {MAX_FORCE:g}, got {force:.6g}"
             raise InvalidLoad(f"load {index}: {reason}")
-        radius = _radius(fields["radius"], f"load {index}", InvalidLoad)
+        radius = _radius(load.radius, f"load {index}", InvalidLoad)
         if not inside_domain(at):
             raise InvalidLoad(f"load {index}: at {_coords(at)} lies outside the unit domain")
         out.append(Load(at, force, radius))
     return tuple(out)
 
 
-def parse_probes(probes: Sequence[ProbeLike], dims: int) -> tuple[Probe, ...]:
+def parse_probes(probes: Sequence[Probe], dims: int) -> tuple[Probe, ...]:
     """``probes`` as checked ``Probe`` objects (depth >= 0, radius >= 0; any finite centre).
 
     Raises:
@@ -82,9 +86,9 @@ def parse_probes(probes: Sequence[ProbeLike], dims: int) -> tuple[Probe, ...]:
         if type(item) is Probe and _clean(item.at, dims, item.depth, item.radius):
             out.append(item)  # the haptic loop's case: nothing to convert
             continue
-        fields = _fields(item, Probe, _PROBE_KEYS, f"probe {index}", InvalidProbe)
-        at = _point(fields["at"], dims, f"probe {index}", InvalidProbe)
-        depth = _number(fields["depth"], f"probe {index} depth", InvalidProbe)
+        probe = _typed(item, Probe, f"probe {index}", InvalidProbe)
+        at = _point(probe.at, dims, f"probe {index}", InvalidProbe)
+        depth = _number(probe.depth, f"probe {index} depth", InvalidProbe)
         if depth < 0.0:
             raise InvalidProbe(
                 f"probe {index}: depth must be >= 0 (the tip's face below the rest surface), "
@@ -93,7 +97,7 @@ def parse_probes(probes: Sequence[ProbeLike], dims: int) -> tuple[Probe, ...]:
         if depth > MAX_DEPTH:
             reason = f"depth must be at most {MAX_DEPTH:g}, got {depth:.6g}"
             raise InvalidProbe(f"probe {index}: {reason}")
-        radius = _radius(fields["radius"], f"probe {index}", InvalidProbe)
+        radius = _radius(probe.radius, f"probe {index}", InvalidProbe)
         out.append(Probe(at, depth, radius))
     return tuple(out)
 
@@ -119,8 +123,8 @@ def _clean(at: object, dims: int, nonnegative: object, radius: object) -> bool:
 def _bounded(
     items: Sequence[object], limit: int, what: str, error: type[LiveError]
 ) -> Sequence[object]:
-    # Exact-type fast paths first (a wire message's lists, maps and floats): the ABC checks
-    # below cost a microsecond each, which a 1 kHz haptic step feels.
+    # Exact-type fast paths first (lists and tuples of canonical items): the ABC checks below
+    # cost a microsecond each, which a 1 kHz haptic step feels.
     if type(items) is list or type(items) is tuple:
         pass
     elif isinstance(items, str | bytes | Mapping) or not isinstance(items, Sequence):
@@ -130,26 +134,9 @@ def _bounded(
     return items
 
 
-def _fields(
-    item: object,
-    kind: type[Load] | type[Probe],
-    keys: frozenset[str],
-    what: str,
-    error: type[LiveError],
-) -> Mapping[str, object]:
-    if type(item) is dict and item.keys() == keys:
-        return item
-    if isinstance(item, kind):
-        return {key: getattr(item, key) for key in keys}
-    if not isinstance(item, Mapping):
-        raise error(f"{what} must be a map with keys {sorted(keys)}, got {type(item).__name__}")
-    names = set(item)
-    if names != keys:
-        missing = sorted(str(k) for k in keys - names)
-        extra = len(names - keys)
-        raise error(
-            f"{what} needs exactly the keys {sorted(keys)} (missing {missing}, {extra} extra)"
-        )
+def _typed(item: object, kind: type[_Item], what: str, error: type[LiveError]) -> _Item:
+    if not isinstance(item, kind):
+        raise error(f"{what} must be a {kind.__name__}, got {type(item).__name__}")
     return item
 
 
@@ -158,7 +145,10 @@ def _number(value: object, what: str, error: type[LiveError]) -> float:
         return value
     if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
         raise error(f"{what} must be a number, got {type(value).__name__}")
-    number = float(value)
+    try:
+        number = float(value)
+    except OverflowError:
+        number = math.inf
     if not math.isfinite(number):
         raise error(f"{what} must be finite, got {number}")
     return number

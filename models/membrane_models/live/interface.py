@@ -14,7 +14,7 @@ reported contact force is >= 0 (the tissue is pushed along -axis, the tool feels
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Generic, Literal, Protocol, TypeVar
 
@@ -26,9 +26,7 @@ __all__ = [
     "Hold",
     "LiveEngine",
     "Load",
-    "LoadLike",
     "Probe",
-    "ProbeLike",
     "ProbeReading",
     "Start",
     "StepResult",
@@ -66,10 +64,6 @@ class Probe:
     at: tuple[float, ...]
     depth: float
     radius: float
-
-
-LoadLike = Load | Mapping[str, object]
-ProbeLike = Probe | Mapping[str, object]
 
 
 @dataclass(frozen=True)
@@ -162,12 +156,13 @@ class LiveEngine(Protocol[StateT]):
     def step(
         self,
         state: StateT,
-        loads: Sequence[LoadLike] = (),
-        probes: Sequence[ProbeLike] = (),
+        loads: Sequence[Load] = (),
+        probes: Sequence[Probe] = (),
         *,
         frame: bool = True,
     ) -> StepResult[StateT]:
-        """Advance one step under ``loads`` and ``probes``; bad input raises a ``LiveError``."""
+        """Advance one step under ``loads`` and ``probes`` (the server converts a step's wire
+        maps into these, through the client's live schema); bad input raises a ``LiveError``."""
 
     def frame(self, state: StateT) -> FloatArray:
         """The displacements of ``state`` on the lattice (x-major, flattened)."""

@@ -164,7 +164,8 @@ def test_bad_input_is_a_user_error() -> None:
 def test_string_kirchhoff_without_stretch_is_the_linear_plucked_string() -> None:
     """stretch = 0 is the linear wave equation from the same smoothed pluck: d'Alembert's closed
     form agrees to the 64-mode truncation of the pluck (its dropped tail, about 1e-9 here)."""
-    from membrane_models import exact_solution, make_problem
+    from membrane_models.exact import exact_solution
+    from membrane_models.problems import make_problem
 
     linear_k = exact_solution(make_problem("string-kirchhoff", {"stretch": "0"}))
     plucked = exact_solution(
@@ -179,8 +180,9 @@ def test_string_kirchhoff_without_stretch_is_the_linear_plucked_string() -> None
 def test_string_kirchhoff_stiffens_with_stretch_and_keeps_its_energy() -> None:
     """With stretch the tension grows with the amplitude: the string comes back sooner than
     the linear one's period 2 / c, and the Galerkin energy is conserved."""
-    from membrane_models import exact_solution, make_problem
+    from membrane_models.exact import exact_solution
     from membrane_models.exact.kirchhoff_carrier import KirchhoffReference
+    from membrane_models.problems import make_problem
 
     problem = make_problem("string-kirchhoff", {"stretch": "400"})
     solution = exact_solution(problem)
