@@ -24,6 +24,14 @@ class ServerLimits(NamedTuple):
     max_sessions: int
     max_sessions_per_peer: int
     session_idle_s: float
+    # Per peer, from a server with sockets (None in process): the requests one peer may keep in
+    # flight and lose no reply, and the bytes of unread replies kept for it.
+    max_in_flight: int | None = None
+    peer_budget_bytes: int | None = None
+
+    def to_wire(self) -> dict[str, Any]:
+        """The map ``hello`` carries (figures the server does not keep are left out)."""
+        return {name: value for name, value in self._asdict().items() if value is not None}
 
 
 @dataclass(frozen=True)
@@ -49,7 +57,7 @@ class HelloReply:
             "session": self.session,
         }
         if self.limits is not None:
-            fields["limits"] = self.limits._asdict()
+            fields["limits"] = self.limits.to_wire()
         return fields
 
     @classmethod
@@ -156,4 +164,12 @@ def _optional_name(value: Any) -> str | None:
 def _limits(value: Any) -> ServerLimits:
     if not isinstance(value, dict):
         raise TypeError(f"limits must be a map, got {preview(value)}")
-    return ServerLimits(**{name: value[name] for name in ServerLimits._fields})
+    return ServerLimits(
+        value["max_request_bytes"],
+        value["max_lattice_points"],
+        value["max_sessions"],
+        value["max_sessions_per_peer"],
+        value["session_idle_s"],
+        value.get("max_in_flight"),
+        value.get("peer_budget_bytes"),
+    )

@@ -11,7 +11,7 @@ import functools
 import hashlib
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from importlib import metadata
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -213,6 +213,9 @@ class Dispatcher:
     Args:
         scenes: The scenes, with distinct names. With exactly one, requests may omit ``scene``.
         stats_snapshot: Returns the ``stats`` reply's fields (the server passes its Stats').
+        sessions: The live sessions' table (kept across reloads by the server).
+        peer_limits: Returns the per-peer figures ``hello`` states (``max_in_flight``,
+            ``peer_budget_bytes``: the server's, which knows its sockets); none in process.
     """
 
     def __init__(
@@ -220,6 +223,7 @@ class Dispatcher:
         scenes: Sequence[ServedScene],
         stats_snapshot: Callable[[], dict[str, Any]] | None = None,
         sessions: SessionTable | None = None,
+        peer_limits: Callable[[], Mapping[str, int]] | None = None,
     ) -> None:
         if not scenes:
             raise ValueError("a server needs at least one scene")
@@ -228,6 +232,7 @@ class Dispatcher:
             names = [served.name for served in scenes]
             raise ValueError(f"scene names must be distinct, got {names}")
         self._stats_snapshot = stats_snapshot or dict
+        self._peer_limits = peer_limits
         self._only = scenes[0] if len(scenes) == 1 else None
         # Live sessions outlive a Dispatcher: the server hands every one it makes the same table.
         self.sessions = sessions if sessions is not None else SessionTable()
@@ -310,6 +315,7 @@ class Dispatcher:
             max_sessions=self.sessions.max_sessions,
             max_sessions_per_peer=self.sessions.max_per_peer,
             session_idle_s=self.sessions.idle_s,
+            **(self._peer_limits() if self._peer_limits is not None else {}),
         )
         return HelloReply(
             protocol=PROTOCOL_VERSION,

@@ -259,7 +259,9 @@ class Server:
             self._swap_in(served)
 
     def _dispatcher(self, served: list[ServedScene]) -> Dispatcher:
-        return Dispatcher(served, self.stats.snapshot, self.sessions)
+        # hello's per-peer figures through a weak reference: no dispatcher keeps the server
+        server = weakref.proxy(self)
+        return Dispatcher(served, self.stats.snapshot, self.sessions, lambda: server.limits)
 
     @property
     def max_in_flight(self) -> int:
