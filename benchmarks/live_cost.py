@@ -17,7 +17,7 @@ from dataclasses import replace
 
 from membrane_models.live import Load, ModalEngine, ModalState, Probe
 from membrane_models.live.cost import StepBudget, step_cost
-from membrane_server.dispatch import ServedScene
+from membrane_server.served import ServedScene
 
 _TOO_SLOW_TO_TIME = 60e6  # work units (about 60 ms)
 

@@ -20,8 +20,8 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "tests" / "helpers"))
 from playwright.sync_api import sync_playwright
 from view_fixtures import BridgeThread
 
-from membrane_server.dispatch import ServedScene
 from membrane_server.scene import scene_from_dict
+from membrane_server.served import ServedScene
 from membrane_server.server import Server
 from membrane_view.bridge import BridgeConfig
 

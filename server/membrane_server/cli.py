@@ -200,13 +200,13 @@ def _serve(
     from threadpoolctl import threadpool_limits
 
     from membrane_server import log_output
-    from membrane_server.live import DEFAULT_MAX_PER_PEER, SessionTable
     from membrane_server.server import (
         DEFAULT_PEER_BUDGET,
         SHUTDOWN_LINGER_MS,
         Server,
         raise_open_file_limit,
     )
+    from membrane_server.sessions import DEFAULT_MAX_PER_PEER, SessionTable
 
     threadpool_limits(limits=args.blas_threads, user_api="blas")  # for the process's lifetime
     before, after = raise_open_file_limit()  # each client costs a descriptor

@@ -8,17 +8,12 @@ gets exactly one reply.
 from __future__ import annotations
 
 import functools
-import hashlib
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
 from importlib import metadata
-from pathlib import Path
 from typing import Any, NamedTuple
 
-import numpy as np
-
-from membrane_client.frame import Frame, SceneInfo
 from membrane_client.protocol import (
     MAX_LATTICE_POINTS,
     MAX_REQUEST_BYTES,
@@ -33,27 +28,15 @@ from membrane_client.protocol import (
     preview,
 )
 from membrane_client.replies import HelloReply, ServerLimits, StatsReply
-from membrane_models.live import LiveEngine, LiveError
-from membrane_server.engines import UnknownEngine
-from membrane_server.evaluators import Evaluator, build_evaluator
-from membrane_server.live import LiveOps, SessionTable, build_scene_engine, live_description
-from membrane_server.reply_cache import ReplyCache
-from membrane_server.reply_encoding import EncodedFields, encode_fields, encode_ok_reply
-from membrane_server.scene import Scene, SceneError, load_scene
-from membrane_server.source import ModelSource, resolve_source
-from membrane_server.timeline import OutOfDomain, Sample, Timeline
+from membrane_server.live import LiveOps
+from membrane_server.reply_encoding import EncodedFields, encode_ok_reply
+from membrane_server.served import ServedScene
+from membrane_server.sessions import SessionTable
+from membrane_server.timeline import OutOfDomain
 
-__all__ = ["Answer", "Dispatcher", "RequestError", "ServedScene", "server_version"]
+__all__ = ["Answer", "Dispatcher", "RequestError", "server_version"]
 
 logger = logging.getLogger(__name__)
-
-UNITS = {
-    "time": "s (simulation time; model time t = step * dt)",
-    "lattice": "problem units (nondimensional, the model's spatial domain)",
-    "displacement": "problem units (nondimensional)",
-    "world": "simulator units: origin + size * lattice coordinate, + scale * displacement",
-}
-
 
 _DISTRIBUTIONS = ("membrane-tissue", "membrane")
 
@@ -67,125 +50,6 @@ def server_version() -> str:
         except metadata.PackageNotFoundError:
             continue
     return "membrane (not installed)"
-
-
-class ServedScene:
-    """A scene ready to answer: its evaluator built once, its time grid, its describe payload."""
-
-    def __init__(
-        self,
-        scene: Scene,
-        evaluator: Evaluator,
-        source: ModelSource,
-        live: LiveEngine[Any] | None = None,
-    ) -> None:
-        self.scene = scene
-        self.evaluator = evaluator
-        self.source = source
-        self.live = live  # a live scene's engine: sessions step it (membrane_server.live)
-        self.timeline = Timeline(
-            dt=scene.dt,
-            last_step=scene.last_step,
-            start_offset=scene.start_offset,
-            snapping=scene.snapping,
-            policy=scene.policy,
-        )
-        self.shape = scene.lattice.shape
-        description = self._describe()
-        # Encoded once: a 65,536-point lattice's describe is a megabyte of coordinates.
-        encoded = encode_fields(description)
-        # The revision names this content: a reload that changes anything a client relies on
-        # (lattice, placement, time grid, model) changes it, and clients see it in every reply.
-        self.revision = hashlib.sha256(encoded.data).hexdigest()[:12]
-        self._description = {**description, "revision": self.revision}
-        self.encoded_description = encoded.plus("revision", self.revision)
-        self._replies = ReplyCache()
-
-    @classmethod
-    def load(cls, scene: Scene | str | Path, threads: int = 1) -> ServedScene:
-        """Load a scene (object, built-in name or path), resolve its model once, build its
-        evaluator from that."""
-        if not isinstance(scene, Scene):
-            scene = load_scene(scene)
-        source = resolve_source(scene)
-        started = time.perf_counter()
-        try:
-            evaluator = build_evaluator(scene, source, threads=threads)
-            engine = None if scene.live is None else build_scene_engine(scene, source.problem)
-        except (SceneError, LiveError, UnknownEngine) as exc:  # where the file is not known
-            raise scene.error(exc) from None
-        logger.info(
-            "scene %s: %s evaluator, %d points, model %s, built in %.2f s",
-            scene.name, evaluator.kind, evaluator.n_points, source.summary()["name"],
-            time.perf_counter() - started,
-        )  # fmt: skip
-        return cls(scene, evaluator, source, engine)
-
-    @property
-    def name(self) -> str:
-        """The scene's name."""
-        return self.scene.name
-
-    def describe(self) -> dict[str, Any]:
-        """The ``describe`` reply's fields."""
-        return self._description
-
-    def query(self, t: float, dtype: str = "<f4") -> dict[str, Any]:
-        """The ``query`` reply's fields for simulation time ``t`` (raises OutOfDomain)."""
-        return self._served_frame(self.timeline.resolve(t), t).to_reply_fields(dtype)
-
-    def encoded_query(self, t: float, dtype: str = "<f4") -> EncodedFields:
-        """``query``'s fields but ``requested_t``, encoded; those of a time on a step come
-        from the reply cache (raises OutOfDomain)."""
-        sample = self.timeline.resolve(t)
-
-        def fields() -> EncodedFields:
-            frame = self._served_frame(sample, t)
-            return encode_fields(frame.to_reply_fields(dtype, requested=False))
-
-        if sample.weight != 0.0:  # between two steps: interpolated, not cached
-            return fields()
-        return self._replies.get((sample.step, dtype, sample.domain), fields)
-
-    def _served_frame(self, sample: Sample, requested_t: float) -> Frame:
-        z = self.frame(sample).reshape(self.shape)
-        domain = str(sample.domain)
-        return Frame(
-            sample.t, sample.step, z, requested_t, domain, self.name, revision=self.revision
-        )
-
-    def frame(self, sample: Sample) -> np.ndarray:
-        """The (n,) displacement for a resolved sample (interpolated under linear snapping)."""
-        frame = self.evaluator.frame(self.timeline.model_time(sample.step))
-        if sample.weight == 0.0:
-            return frame
-        following = self.evaluator.frame(self.timeline.model_time(sample.step + 1))
-        mixed: np.ndarray = (1.0 - sample.weight) * frame + sample.weight * following
-        return mixed
-
-    def _describe(self) -> dict[str, Any]:
-        scene, placement = self.scene, self.scene.placement
-        return SceneInfo(
-            name=scene.name,
-            description=scene.description,
-            points=self.evaluator.points,
-            shape=tuple(self.shape),
-            dt=scene.dt,
-            duration=scene.duration,
-            start_offset=scene.start_offset,
-            steps=scene.steps,
-            origin=np.asarray(placement.origin, dtype=np.float64),
-            size=placement.size,
-            scale=placement.scale,
-            axis=placement.axis,
-            policy=scene.policy,
-            snapping=scene.snapping,
-            evaluator=self.evaluator.kind,
-            evaluator_info={k: v for k, v in self.evaluator.info().items() if k != "kind"},
-            model=self.source.summary(),
-            units=UNITS,
-            live={} if self.live is None else live_description(self.live),
-        ).to_reply_fields()
 
 
 class Prepared(NamedTuple):

@@ -4,7 +4,8 @@ For tests of the client against the real dispatcher, and for embedding a scene i
 simulator loop without a server process::
 
     from membrane_client import Client
-    from membrane_server.dispatch import Dispatcher, ServedScene
+    from membrane_server.dispatch import Dispatcher
+    from membrane_server.served import ServedScene
     from membrane_server.in_process import InProcessTransport
 
     transport = InProcessTransport(Dispatcher([ServedScene.load("rope")]))

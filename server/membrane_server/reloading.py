@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from membrane_server.dispatch import ServedScene
+from membrane_server.served import ServedScene
 
 __all__ = ["SceneBuilder", "describe_changes"]
 

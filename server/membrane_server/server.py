@@ -40,10 +40,11 @@ import zmq
 from membrane_client.client import DEFAULT_ADDRESS
 from membrane_client.protocol import MAX_REQUEST_BYTES, ErrorCode, encode, error_reply
 from membrane_errors import UserError
-from membrane_server.dispatch import Answer, Dispatcher, ServedScene
-from membrane_server.live import SessionTable
+from membrane_server.dispatch import Answer, Dispatcher
 from membrane_server.reloading import SceneBuilder, describe_changes
 from membrane_server.scene import Scene, load_scene
+from membrane_server.served import ServedScene
+from membrane_server.sessions import SessionTable
 from membrane_server.stats import Stats
 
 __all__ = [

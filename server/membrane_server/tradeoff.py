@@ -36,10 +36,10 @@ from membrane_models.artifacts.manifest import Manifest
 from membrane_models.artifacts.zoo_index import list_models, resolve_model
 from membrane_models.exact import exact_solution
 from membrane_models.problems import make_problem
-from membrane_server.dispatch import ServedScene
 from membrane_server.evaluators import build_evaluator
 from membrane_server.runtime import OPTIMIZATION_LEVELS
 from membrane_server.scene import Scene, SceneError, load_scene, scene_from_dict
+from membrane_server.served import ServedScene
 from membrane_server.source import ModelSource, resolve_source
 
 __all__ = [

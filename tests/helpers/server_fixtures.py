@@ -27,8 +27,8 @@ from typing import Any
 import pytest
 from onnx_graphs import TestModel, build_test_model
 
-from membrane_server.dispatch import ServedScene
 from membrane_server.scene import Scene, scene_from_dict
+from membrane_server.served import ServedScene
 from membrane_server.server import Server
 
 LOOPBACK_ANY_PORT = "tcp://127.0.0.1:*"

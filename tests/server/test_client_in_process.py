@@ -14,9 +14,10 @@ import pytest
 
 from membrane_client import Client, ServerError, UserError
 from membrane_client.protocol import ErrorCode
-from membrane_server.dispatch import Dispatcher, ServedScene
+from membrane_server.dispatch import Dispatcher
 from membrane_server.in_process import InProcessTransport
 from membrane_server.scene import scene_from_dict
+from membrane_server.served import ServedScene
 
 
 def _rope(**changes: Any) -> ServedScene:

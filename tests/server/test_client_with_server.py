@@ -109,7 +109,7 @@ def test_server_error_carries_the_code(membrane_server: Server) -> None:
 def test_server_imports_no_torch() -> None:
     code = (
         "import sys, membrane_server.server, membrane_server.dispatch\n"
-        "from membrane_server.dispatch import ServedScene\n"
+        "from membrane_server.served import ServedScene\n"
         "ServedScene.load('rope')\n"
         "print('torch' in sys.modules)\n"
     )

@@ -14,7 +14,6 @@ from onnx_graphs import reference_full
 from membrane_models.artifacts.manifest import ManifestError
 from membrane_models.exact import exact_solution
 from membrane_models.problems import make_problem
-from membrane_server.dispatch import ServedScene
 from membrane_server.evaluators import (
     Evaluator,
     ExactEvaluator,
@@ -23,6 +22,7 @@ from membrane_server.evaluators import (
 )
 from membrane_server.runtime import OPTIMIZATION_LEVELS, session_options
 from membrane_server.scene import Scene, SceneError, scene_from_dict
+from membrane_server.served import ServedScene
 from membrane_server.source import ModelSource, resolve_source
 
 GRID_TIMES = [0.0, 0.01, 0.25, 0.5, 0.73, 1.0]

@@ -20,9 +20,9 @@ from membrane_client.protocol import MAX_LATTICE_POINTS, Request, decode, unpack
 from membrane_models.artifacts.zoo_index import list_models, resolve_model
 from membrane_models.exact import exact_solution
 from membrane_models.problems import make_problem
-from membrane_server.dispatch import ServedScene
 from membrane_server.runtime import load_graph
 from membrane_server.scene import SceneError, scene_from_dict
+from membrane_server.served import ServedScene
 from membrane_server.server import Server
 from membrane_server.timeline import OutOfDomain, Timeline
 

@@ -34,9 +34,10 @@ from membrane_client.session import Session
 from membrane_models.live import Load, ModalEngine
 from membrane_models.live import Probe as EngineProbe
 from membrane_models.live.cost import step_cost
-from membrane_server.dispatch import Dispatcher, ServedScene
+from membrane_server.dispatch import Dispatcher
 from membrane_server.in_process import InProcessTransport
-from membrane_server.live import SessionTable
+from membrane_server.served import ServedScene
+from membrane_server.sessions import SessionTable
 
 LIVE_SCENES = ("membrane-live", "rope-live")
 

@@ -14,8 +14,10 @@ import pytest
 from membrane_client import live_limits, live_schema, protocol
 from membrane_client.protocol import ErrorCode, decode, encode
 from membrane_models.live import LiveEngine, Load, ModalEngine, Probe, inputs
-from membrane_server.dispatch import Dispatcher, ServedScene
-from membrane_server.live import SessionTable, engine_inputs
+from membrane_server.dispatch import Dispatcher
+from membrane_server.live import engine_inputs
+from membrane_server.served import ServedScene
+from membrane_server.sessions import SessionTable
 
 LOAD = {"at": [0.5, 0.5], "force": 1.0, "radius": 0.05}
 PROBE = {"at": [0.5, 0.5], "depth": 1e-5, "radius": 0.05}

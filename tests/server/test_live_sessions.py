@@ -22,10 +22,11 @@ from membrane_models.live import Load as EngineLoad
 from membrane_models.live import ModalEngine
 from membrane_models.live import Probe as EngineProbe
 from membrane_models.problems import make_problem
-from membrane_server.dispatch import Dispatcher, ServedScene
+from membrane_server.dispatch import Dispatcher
 from membrane_server.in_process import InProcessTransport
-from membrane_server.live import SessionTable
 from membrane_server.scene import load_scene, scene_from_dict
+from membrane_server.served import ServedScene
+from membrane_server.sessions import SessionTable
 
 PROBE = Probe((0.5, 0.5), 0.0005, 0.05)
 

@@ -13,8 +13,8 @@ import pytest
 
 from membrane_models.exact import exact_solution
 from membrane_models.problems import InvalidProblem, make_problem
-from membrane_server.dispatch import ServedScene
 from membrane_server.scene import Scene, SceneError, load_scene, scene_from_dict
+from membrane_server.served import ServedScene
 from membrane_server.source import resolve_source
 from membrane_server.visibility import VISIBLE_FRACTION, invisible_motion, lattice_spacing
 

@@ -20,8 +20,9 @@ import msgpack
 import numpy as np
 
 from membrane_client.protocol import decode, encode
-from membrane_server.dispatch import Dispatcher, ServedScene
-from membrane_server.live import SessionTable
+from membrane_server.dispatch import Dispatcher
+from membrane_server.served import ServedScene
+from membrane_server.sessions import SessionTable
 from membrane_server.stats import Stats
 
 RECORDING = Path(__file__).with_name("wire_recording.msgpack")

@@ -24,7 +24,7 @@ import zmq
 
 from membrane_client import Client
 from membrane_client.errors import MembraneError
-from membrane_server.dispatch import ServedScene
+from membrane_server.served import ServedScene
 
 MEMBRANE = [sys.executable, "-m", "membrane_cli"]
 MiB = 1024 * 1024

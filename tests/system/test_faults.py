@@ -26,8 +26,8 @@ import zmq
 from membrane_client import Client
 from membrane_client.protocol import Request, decode, unpack_array
 from membrane_models.artifacts.manifest import ManifestError
-from membrane_server.dispatch import ServedScene
 from membrane_server.scene import load_scene, scene_from_dict
+from membrane_server.served import ServedScene
 
 if TYPE_CHECKING:
     from onnx_graphs import TestModel

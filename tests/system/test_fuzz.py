@@ -43,8 +43,9 @@ from membrane_client.protocol import (
     encode,
     unpack_array,
 )
-from membrane_server.dispatch import Dispatcher, ServedScene
+from membrane_server.dispatch import Dispatcher
 from membrane_server.scene import scene_from_dict
+from membrane_server.served import ServedScene
 from membrane_server.server import Server
 
 # Inputs tried, per kind, and the good client's correct answers (printed at the end).

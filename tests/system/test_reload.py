@@ -118,8 +118,8 @@ def test_a_reload_to_a_new_lattice_under_a_polling_client(
 def test_revision_names_the_content(tmp_path: Path) -> None:
     """The same scene built twice has one revision; any change to what describe says gives
     another."""
-    from membrane_server.dispatch import ServedScene
     from membrane_server.scene import load_scene
+    from membrane_server.served import ServedScene
 
     scene = tmp_path / "skin.toml"
     scene.write_text('model = "string-forced"\nevaluator = "exact"\ndt = 0.1\nduration = 1.0\n'

@@ -32,13 +32,13 @@ from membrane_client.client import DEFAULT_ADDRESS
 from membrane_client.curve import CurveError, client_socket_options
 from membrane_client.protocol import MAX_LATTICE_POINTS, MAX_REPLY_BYTES, encode, ok_reply
 from membrane_server.cli import add_serve
-from membrane_server.dispatch import ServedScene
 from membrane_server.scene import DEFAULT_TABLE_MAX_BYTES, SceneError, scene_from_dict
 from membrane_server.security import (
     CurveAuthenticator,
     is_loopback_endpoint,
     server_socket_options,
 )
+from membrane_server.served import ServedScene
 from membrane_server.server import Server
 
 if TYPE_CHECKING:
@@ -373,7 +373,7 @@ def test_server_loads_only_onnx_json_and_toml(tmp_path: Path) -> None:
     script = textwrap.dedent(
         f"""
         import sys
-        from membrane_server.dispatch import ServedScene
+        from membrane_server.served import ServedScene
         from membrane_server.scene import load_scene
         opened = []
         sys.addaudithook(lambda event, args: opened.append(str(args[0]))

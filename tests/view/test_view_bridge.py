@@ -200,8 +200,8 @@ def test_a_lost_session_is_shown_and_a_new_one_opened(
 
 
 def test_the_scene_message_carries_a_point_lists_points_and_no_grids() -> None:
-    from membrane_server.dispatch import ServedScene
     from membrane_server.scene import scene_from_dict
+    from membrane_server.served import ServedScene
     from membrane_view.bridge import BridgeConfig, scene_message
 
     listed = scene_from_dict(
