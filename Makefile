@@ -33,8 +33,9 @@ test: $(VENV)/.dev-installed
 	$(BIN)/lint-imports --no-cache
 	$(BIN)/python -m pytest -q
 
-# The fast lane (under a minute): the suite without the tests marked slow (fresh-venv installs,
-# soak, load runs, training, servers in child processes). `make test` runs them all.
+# The fast lane (under a minute: 50 s wall on the 2-core machine, idle): the suite without the
+# tests marked slow. Slow are every test over about 2 s, every test that starts a process (a
+# server, the CLI, a fresh venv) and every browser test. `make test` runs them all.
 test-fast: $(VENV)/.dev-installed
 	$(BIN)/python -m pytest -q -m "not slow"
 

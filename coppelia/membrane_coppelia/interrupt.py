@@ -15,19 +15,23 @@ from __future__ import annotations
 
 import logging
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
+from typing import Any
 
 __all__ = ["Interrupted", "interrupt_on", "raise_if_interrupted"]
 
 log = logging.getLogger(__name__)
 
 # The signal received under ``interrupt_on``, until the block ends. The handler raises at once,
-# but an exception raised while a finalizer runs (a ``__del__``, a weakref callback: the
-# interpreter may run one between any two bytecodes) is printed as "Exception ignored" and
-# lost; the run loops call ``raise_if_interrupted`` every step so that it is raised again there.
+# but an exception raised where the interpreter cannot propagate it (a finalizer, a weakref
+# callback, an isinstance check called from an encoder's C code) is handed to
+# ``sys.unraisablehook`` and lost; the run loops call ``raise_if_interrupted`` every step so
+# that it is raised again there, and the hook under ``interrupt_on`` keeps such an
+# ``Interrupted`` off stderr (it is not lost, so there is nothing to report).
 _pending: list[int] = []
 
 
@@ -85,9 +89,17 @@ def interrupt_on(*signums: int) -> Iterator[None]:
         raise Interrupted(signum)
 
     previous = {signum: signal.signal(signum, handler) for signum in signums}
+    unraisable = sys.unraisablehook
+
+    def quiet_about_interrupted(report: Any) -> None:
+        if not isinstance(report.exc_value, Interrupted):
+            unraisable(report)
+
+    sys.unraisablehook = quiet_about_interrupted
     try:
         yield
     finally:
         _pending.clear()
+        sys.unraisablehook = unraisable
         for signum, old in previous.items():
             signal.signal(signum, old)

@@ -285,7 +285,7 @@ def test_without_the_bench_extra_it_names_the_extra(
 
 
 @pytest.fixture(scope="module")
-def live_server() -> Iterator[str]:
+def rope_server_address() -> Iterator[str]:
     """A real server on a small exact-evaluator rope (20 points, 101 steps of 0.01 s)."""
     from membrane_server.scene import scene_from_dict
     from membrane_server.server import Server
@@ -304,10 +304,10 @@ def live_server() -> Iterator[str]:
         yield server.address
 
 
-def test_probe_reads_the_scenes_time_grid(live_server: str) -> None:
+def test_probe_reads_the_scenes_time_grid(rope_server_address: str) -> None:
     from membrane_bench.bench import probe
 
-    target = probe(live_server)
+    target = probe(rope_server_address)
     assert target.scene == "rope-small"
     assert target.evaluator == "exact"
     assert len(target.times) == 101
@@ -318,10 +318,10 @@ def test_probe_reads_the_scenes_time_grid(live_server: str) -> None:
 
 @pytest.mark.slow
 def test_bench_against_a_live_server_with_baseline_produces_every_field(
-    live_server: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    rope_server_address: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     csv_path = tmp_path / "bench.csv"
-    argv = ["bench", "--connect", live_server, "--rate", "200", "--duration", "1"]
+    argv = ["bench", "--connect", rope_server_address, "--rate", "200", "--duration", "1"]
     argv += ["--warmup", "0.2", "--baseline", "--json", "--csv", str(csv_path), "--quiet"]
     code = main(argv)
     out = capsys.readouterr().out
@@ -349,9 +349,9 @@ def test_bench_against_a_live_server_with_baseline_produces_every_field(
 
 @pytest.mark.slow
 def test_bench_closed_loop_against_a_live_server_prints_a_table(
-    live_server: str, capsys: pytest.CaptureFixture[str]
+    rope_server_address: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    argv = ["bench", "--connect", live_server, "--concurrency", "2", "--clients", "2"]
+    argv = ["bench", "--connect", rope_server_address, "--concurrency", "2", "--clients", "2"]
     code = main([*argv, "--duration", "0.5", "--warmup", "0", "--payload", "ping", "--quiet"])
     out = capsys.readouterr().out
     assert code == 0
@@ -360,20 +360,20 @@ def test_bench_closed_loop_against_a_live_server_prints_a_table(
 
 
 def test_bench_reports_error_replies_by_code(
-    live_server: str, capsys: pytest.CaptureFixture[str]
+    rope_server_address: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    argv = ["bench", "--connect", live_server, "--scene", "no-such-scene", "--quiet"]
+    argv = ["bench", "--connect", rope_server_address, "--scene", "no-such-scene", "--quiet"]
     assert main(argv) == 1
     err = capsys.readouterr().err.strip()
     assert "unknown_scene" in err and len(err.splitlines()) == 1
 
 
 @pytest.mark.slow
-def test_baseline_in_alternating_segments_merges_every_part(live_server: str) -> None:
+def test_baseline_in_alternating_segments_merges_every_part(rope_server_address: str) -> None:
     from membrane_bench.bench import probe, run_bench
 
     spec = LoadSpec(mode="open", rate=200, duration=0.6, warmup=0.1)
-    report = run_bench(probe(live_server), spec, baseline=True, segments=2)
+    report = run_bench(probe(rope_server_address), spec, baseline=True, segments=2)
     assert report.baseline is not None
     for result in (report.server, report.baseline):
         assert result.sent + result.unsent == 120  # two parts of 0.3 s at 200 Hz
@@ -419,7 +419,7 @@ def _bench_stderr(address: str, on_terminal: bool) -> str:
 
 
 @pytest.mark.slow
-def test_progress_bar_shows_on_a_terminal_only(live_server: str) -> None:
-    assert "\r" in _bench_stderr(live_server, on_terminal=True)  # the bar, redrawn in place
-    piped = _bench_stderr(live_server, on_terminal=False)
+def test_progress_bar_shows_on_a_terminal_only(rope_server_address: str) -> None:
+    assert "\r" in _bench_stderr(rope_server_address, on_terminal=True)  # the bar, redrawn in place
+    piped = _bench_stderr(rope_server_address, on_terminal=False)
     assert "\r" not in piped and "replies" not in piped, piped

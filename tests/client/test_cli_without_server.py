@@ -45,6 +45,7 @@ def test_cli_ping_without_server_exits_1(capsys: pytest.CaptureFixture[str]) -> 
     assert "no reply" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_stats_without_a_server_is_exit_1_in_one_line(tmp_path: Path) -> None:
     address = f"ipc://{tmp_path}/nobody"
     result = membrane("stats", "--connect", address, "--timeout", "0.2")
@@ -95,6 +96,7 @@ def _add_bad_import(subparsers: Any) -> None:
     subparsers.add_parser("bad-import").set_defaults(handler=handler)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("command", "add", "exception"),
     [

@@ -170,6 +170,7 @@ def test_frame_without_info_has_no_positions() -> None:
 # -- process-level behaviour ------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_exit_after_a_timeout_never_hangs(scripted: Any) -> None:
     server = scripted(lambda index, message: None)
     code = (
@@ -185,6 +186,7 @@ def test_exit_after_a_timeout_never_hangs(scripted: Any) -> None:
     assert result.stdout.strip() == "timed out"
 
 
+@pytest.mark.slow
 def test_client_imports_no_server_side_libraries() -> None:
     code = (
         "import sys, membrane_client, membrane_cli.client_commands, membrane_cli.dispatcher\n"

@@ -98,6 +98,7 @@ def _adapter(server: Any, standin: CoppeliaStandin, *extra: str) -> subprocess.P
     )
 
 
+@pytest.mark.slow
 def test_cli_sigint_exits_130_with_one_line_and_the_simulator_released(
     rope_server: Any, standin: CoppeliaStandin
 ) -> None:
@@ -117,6 +118,7 @@ def test_cli_sigint_exits_130_with_one_line_and_the_simulator_released(
     assert _released(standin)
 
 
+@pytest.mark.slow
 def test_after_sigkill_the_simulator_is_released_within_the_remote_timeout(
     rope_server: Any, standin: CoppeliaStandin
 ) -> None:
@@ -160,3 +162,29 @@ def test_a_signal_swallowed_by_a_finalizer_is_raised_again_by_the_run_loop() -> 
             raise_if_interrupted()
         assert raised.value.signum == signal.SIGINT
     raise_if_interrupted()  # outside the block nothing is pending
+
+
+def test_a_swallowed_interrupt_is_kept_off_stderr_but_other_unraisables_are_not() -> None:
+    """The swallowed Interrupted is not lost (the run loop raises it again), so printing
+    "Exception ignored ... Interrupted" on Ctrl-C would only be noise; any other exception a
+    finalizer loses is still reported."""
+    from membrane_coppelia.interrupt import Interrupted, interrupt_on
+
+    seen: list[type[BaseException]] = []
+    before = sys.unraisablehook
+    sys.unraisablehook = lambda report: seen.append(type(report.exc_value))
+    try:
+
+        class Raises:
+            def __init__(self, error: BaseException) -> None:
+                self.error = error
+
+            def __del__(self) -> None:
+                raise self.error
+
+        with interrupt_on():
+            Raises(Interrupted(signal.SIGINT))
+            Raises(ValueError("a finalizer's bug"))
+        assert seen == [ValueError]
+    finally:
+        sys.unraisablehook = before

@@ -344,6 +344,7 @@ def test_a_standin_that_stops_answering_times_the_client_out() -> None:
         remote.socket.close(linger=0)
 
 
+@pytest.mark.slow
 def test_runs_as_a_module_and_stops_on_sigterm() -> None:
     process = subprocess.Popen(
         [sys.executable, "-m", "membrane_coppelia.standin", "--port", "0", "--dt", "0.01"],
@@ -370,6 +371,7 @@ def test_runs_as_a_module_and_stops_on_sigterm() -> None:
             process.wait()
 
 
+@pytest.mark.slow
 def test_bad_arguments_exit_2() -> None:
     result = subprocess.run(
         [sys.executable, "-m", "membrane_coppelia.standin", "--dt", "-1"],

@@ -106,6 +106,7 @@ def test_server_error_carries_the_code(membrane_server: Server) -> None:
 # -- the server's imports ---------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_server_imports_no_torch() -> None:
     code = (
         "import sys, membrane_server.server, membrane_server.dispatch\n"

@@ -245,6 +245,7 @@ def test_the_largest_1d_lattice_against_the_exact_solution() -> None:
 # -- the exact solver over wave speeds and force positions ---------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("problem", ["string-forced", "membrane-forced"])
 @pytest.mark.parametrize("c", ["0.1", "1", "10", "100"])
 def test_exact_solver_states_an_honest_truncation_error(problem: str, c: str) -> None:

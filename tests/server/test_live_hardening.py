@@ -307,6 +307,7 @@ def test_a_replaced_dispatcher_and_its_scenes_are_freed_by_reference_counting() 
         gc.enable()
 
 
+@pytest.mark.slow
 def test_an_old_scene_lives_exactly_as_long_as_a_session_holds_it() -> None:
     served = ServedScene.load("membrane-live")
     table = SessionTable()

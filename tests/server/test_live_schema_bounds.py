@@ -147,6 +147,7 @@ class _Recording:
         return self.engine.step(state, loads, probes, **kw)
 
 
+@pytest.mark.slow
 def test_the_engine_is_given_its_own_types_with_the_wires_values(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

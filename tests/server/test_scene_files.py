@@ -239,6 +239,7 @@ def test_the_docs_show_whole_scene_files() -> None:
     assert len(_documented_scenes()) == 3
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("index", range(3))
 def test_documented_scene_files_load_and_move_visibly(tmp_path: Path, index: int) -> None:
     path = tmp_path / "documented.toml"

@@ -421,6 +421,7 @@ def test_serve_subprocess_answers_and_stops_on_sigterm() -> None:
             process.wait()
 
 
+@pytest.mark.slow
 def test_serve_with_a_bad_scene_exits_2() -> None:
     result = subprocess.run(
         [sys.executable, "-m", "membrane_cli", "serve", "--scene", "nowhere"],

@@ -128,6 +128,7 @@ def test_pareto_front_keeps_only_cases_nothing_beats_on_both_axes() -> None:
     assert front == [fast_rough, middle, slow_exact]
 
 
+@pytest.mark.slow
 def test_report_lists_unmeasured_cases_and_says_when_no_model_is_shipped(tmp_path: Path) -> None:
     good = _measured(50, 1e-8)
     good.build_s = 0.1

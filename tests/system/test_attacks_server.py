@@ -394,6 +394,7 @@ def test_a_full_output_drops_lines_and_counts_them_never_blocks() -> None:
         os.close(write_end)
 
 
+@pytest.mark.slow
 def test_lines_of_one_kind_are_rate_limited_and_tracebacks_shortened() -> None:
     read_end, write_end = os.pipe()
     now = [0.0]

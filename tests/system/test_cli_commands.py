@@ -92,6 +92,7 @@ def test_serve_warns_when_the_motion_will_not_show(tmp_path: Path) -> None:
 # -- membrane query: unknown scene -------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_query_without_scene_on_a_multi_scene_server_names_the_flag(
     two_scene_server: Server,
 ) -> None:
@@ -103,6 +104,7 @@ def test_query_without_scene_on_a_multi_scene_server_names_the_flag(
     )
 
 
+@pytest.mark.slow
 def test_query_of_an_unknown_scene_lists_the_hosted_ones(two_scene_server: Server) -> None:
     address = two_scene_server.address
     result = membrane("query", "--connect", address, "--t", "0.5", "--scene", "middle")
@@ -141,6 +143,7 @@ def test_stats_for_people_and_for_machines(two_scene_server: Server) -> None:
 # -- membrane tradeoff --out -------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_tradeoff_needs_out_and_writes_nothing_without_it(tmp_path: Path) -> None:
     result = membrane("tradeoff", "--quick", cwd=tmp_path)
     assert result.returncode == 2
@@ -151,6 +154,7 @@ def test_tradeoff_needs_out_and_writes_nothing_without_it(tmp_path: Path) -> Non
 # -- membrane exact --help ---------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_exact_help_lists_every_problems_parameters() -> None:
     result = membrane("exact", "--help")
     assert result.returncode == 0

@@ -106,6 +106,7 @@ def test_daemon_that_cannot_bind_reports_failure(daemon_files: tuple[Path, Path]
     assert not pidfile.exists()
 
 
+@pytest.mark.slow
 def test_pidfile_without_daemon_is_a_usage_error(tmp_path: Path) -> None:
     result = membrane("serve", "--pidfile", str(tmp_path / "x.pid"))
     assert result.returncode == 2

@@ -6,9 +6,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 DEMO = Path(__file__).resolve().parents[2] / "examples" / "demo.py"
 
 
+@pytest.mark.slow
 def test_demo_polls_one_second_and_stops_the_server(tmp_path: Path) -> None:
     plot = tmp_path / "demo.png"
     result = subprocess.run(

@@ -351,6 +351,7 @@ def test_a_missing_graph_is_named(test_models: dict[str, TestModel], tmp_path: P
         ServedScene.load(_scene_on(manifest, "separable"))
 
 
+@pytest.mark.slow
 def test_serve_refuses_an_altered_model_in_one_line(
     test_models: dict[str, TestModel], tmp_path: Path
 ) -> None:

@@ -317,7 +317,7 @@ def scenes(evaluator_scenes: dict[str, ServedScene]) -> dict[str, ServedScene]:
 
 
 @pytest.fixture(scope="module")
-def live_server(scenes: dict[str, ServedScene]) -> Iterator[Server]:
+def running_server(scenes: dict[str, ServedScene]) -> Iterator[Server]:
     server = Server(list(scenes.values()), bind="tcp://127.0.0.1:*")
     server.start()
     yield server
@@ -435,9 +435,9 @@ def test_the_fuzzer_reaches_every_outcome(scenes: dict[str, ServedScene]) -> Non
 @fuzz(150)
 @given(body=bodies)
 def test_live_server_answers_garbage_while_a_good_client_polls(
-    body: list[bytes], live_server: Server, scenes: dict[str, ServedScene], good: GoodClient
+    body: list[bytes], running_server: Server, scenes: dict[str, ServedScene], good: GoodClient
 ) -> None:
-    socket = _shared_dealer(live_server.address)
+    socket = _shared_dealer(running_server.address)
     socket.send_multipart([b"", *body])  # the empty delimiter REQ would add
     frames = socket.recv_multipart()  # zmq.Again (a missing reply) fails the test
     TALLY["live"] += 1
@@ -456,8 +456,8 @@ def _shared_dealer(address: str) -> zmq.Socket[bytes]:
 
 
 @pytest.fixture(scope="module")
-def good(live_server: Server, scenes: dict[str, ServedScene]) -> Iterator[GoodClient]:
-    client = GoodClient(live_server.address, scenes["table"])
+def good(running_server: Server, scenes: dict[str, ServedScene]) -> Iterator[GoodClient]:
+    client = GoodClient(running_server.address, scenes["table"])
     yield client
     client.stop()
     for socket in _SOCKETS.values():
@@ -468,7 +468,7 @@ def good(live_server: Server, scenes: dict[str, ServedScene]) -> Iterator[GoodCl
 
 
 @pytest.mark.slow
-def test_the_good_client_was_served_throughout(good: GoodClient, live_server: Server) -> None:
+def test_the_good_client_was_served_throughout(good: GoodClient, running_server: Server) -> None:
     """Runs after the live fuzz (same module fixture): the poller never saw a wrong frame."""
     deadline = time.monotonic() + 5
     start = good.queries
@@ -486,10 +486,10 @@ def test_the_good_client_was_served_throughout(good: GoodClient, live_server: Se
      (10 * MAX_REQUEST_BYTES, False)],
 )  # fmt: skip
 def test_oversized_requests_drop_their_connection_only(
-    live_server: Server, good: GoodClient, size: int, answered: bool
+    running_server: Server, good: GoodClient, size: int, answered: bool
 ) -> None:
     payload = _ping_of_size(size)
-    socket = _dealer(live_server.address)
+    socket = _dealer(running_server.address)
     socket.setsockopt(zmq.RCVTIMEO, 1000 if not answered else REPLY_TIMEOUT_MS)
     try:
         socket.send_multipart([b"", payload])
@@ -502,7 +502,7 @@ def test_oversized_requests_drop_their_connection_only(
                 socket.recv_multipart()
     finally:
         socket.close(linger=0)
-    with Client(live_server.address, timeout=5.0) as client:  # the server is fine
+    with Client(running_server.address, timeout=5.0) as client:  # the server is fine
         assert client.ping() > 0
     assert good.failures == []
 
@@ -521,11 +521,11 @@ def _ping_of_size(size: int) -> bytes:
 
 @pytest.mark.slow
 def test_multi_frame_garbage_near_and_over_the_size_limit(
-    live_server: Server, good: GoodClient
+    running_server: Server, good: GoodClient
 ) -> None:
     """The limit is per frame: many frames under it are one bad_message reply; one over it
     drops the whole message and its connection."""
-    socket = _dealer(live_server.address)
+    socket = _dealer(running_server.address)
     try:
         socket.send_multipart([b"", *([b"\xc1" * (MAX_REQUEST_BYTES // 2)] * 6)])
         reply = decode(socket.recv_multipart()[-1])
@@ -541,6 +541,6 @@ def test_multi_frame_garbage_near_and_over_the_size_limit(
         TALLY["oversize"] += 3
     finally:
         socket.close(linger=0)
-    with Client(live_server.address, timeout=5.0) as client:
+    with Client(running_server.address, timeout=5.0) as client:
         assert client.ping() > 0
     assert good.failures == []

@@ -330,6 +330,7 @@ _LIST_SERVER_MODULES = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_nothing_on_the_wire_or_served_uses_pickle() -> None:
     result = subprocess.run(
         [sys.executable, "-c", _LIST_SERVER_MODULES], capture_output=True, text=True, timeout=120
@@ -361,6 +362,7 @@ def test_the_unsafe_pattern_catches_what_it_should() -> None:
     assert not UNSAFE.search("session.run(outputs)  # model.evaluate(...) is fine")
 
 
+@pytest.mark.slow
 def test_server_loads_only_onnx_json_and_toml(tmp_path: Path) -> None:
     """The files a server opens to load a scene and its model, recorded by an audit hook in a
     fresh interpreter: ONNX graphs (protobuf), JSON manifests, TOML scenes, nothing else of
@@ -440,6 +442,7 @@ def test_a_table_over_its_memory_limit_is_refused_at_load(
         ServedScene.load(fine)
 
 
+@pytest.mark.slow
 def test_serve_refuses_an_oversized_table_in_one_line(tmp_path: Path) -> None:
     scene = tmp_path / "big.toml"
     scene.write_text(

@@ -14,6 +14,8 @@ import sys
 import tomllib
 from pathlib import Path
 
+import pytest
+
 from membrane_client import Client
 from membrane_server.server import Server
 
@@ -53,6 +55,7 @@ def test_changelog_keeps_an_unreleased_section_then_dated_releases_newest_first(
     assert releases[-1][0] == "0.1.0"
 
 
+@pytest.mark.slow
 def test_version_flag_hello_and_changelog_agree(membrane_server: Server) -> None:
     result = subprocess.run(
         [sys.executable, "-m", "membrane_cli", "--version"],

@@ -134,6 +134,7 @@ def test_a_press_on_a_live_scene_gives_a_force_and_a_dent(
     assert any(t["type"] == "scene" and t["live"] for t in texts)
 
 
+@pytest.mark.slow
 def test_stats_reach_the_page_with_the_bridges_own_time(
     live_server: Server, start_bridge: BridgeFactory
 ) -> None:
@@ -161,6 +162,7 @@ def test_an_unreachable_server_is_an_error_on_the_page(start_bridge: BridgeFacto
     assert "server unreachable at tcp://127.0.0.1:9" in error["message"]
 
 
+@pytest.mark.slow
 def test_a_lost_session_is_shown_and_a_new_one_opened(
     live_server: Server, start_bridge: BridgeFactory
 ) -> None:

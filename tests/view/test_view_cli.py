@@ -92,6 +92,7 @@ def _frames(path: Path) -> int:
         return int(getattr(image, "n_frames", 1))
 
 
+@pytest.mark.slow
 def test_animate_a_film_to_gif(membrane_server: Server, tmp_path: Path) -> None:
     out = tmp_path / "film.gif"
     argv = ["animate", "--connect", membrane_server.address, "--scene", "membrane"]
@@ -106,6 +107,7 @@ def test_animate_a_poke_on_a_live_scene_to_gif(live_server: Server, tmp_path: Pa
     assert _frames(out) == 8  # 0.8 s of poke and ringing at 10 frames per second
 
 
+@pytest.mark.slow
 def test_membrane_view_serves_the_page_from_the_command(
     membrane_server: Server, tmp_path: Path
 ) -> None:

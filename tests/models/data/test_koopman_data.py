@@ -90,6 +90,7 @@ def test_files_hold_snapshots_and_their_generator(tmp_path: Path) -> None:
                 assert not np.any(np.all(starts[a][:, None] == starts[b][None], axis=2))
 
 
+@pytest.mark.slow
 def test_datasets_are_deterministic_by_seed(tmp_path: Path) -> None:
     first = _read(write_datasets(SMALL, tmp_path / "a")["train"])
     again = _read(write_datasets(SMALL, tmp_path / "b")["train"])

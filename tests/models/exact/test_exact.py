@@ -249,6 +249,7 @@ def test_membrane_extremes_stay_finite() -> None:
         assert math.isfinite(solution.truncation_error)
 
 
+@pytest.mark.slow
 def test_unreachable_rtol_is_reported_not_hidden(caplog: pytest.LogCaptureFixture) -> None:
     """A force at the corner has a slowly decaying spectrum: the memory limits stop the series
     short of rtol, and the error achieved is stated (and logged), not rtol."""

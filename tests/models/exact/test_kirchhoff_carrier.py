@@ -79,6 +79,7 @@ def _at_nonlinearity(q0: np.ndarray, p0: np.ndarray, eps: float) -> tuple[np.nda
     return q0 * math.sqrt(a2), p0 * math.sqrt(a2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape", ["noise", "kinked pluck"])
 def test_energy_is_conserved_to_1e9_over_1000_steps(shape: str) -> None:
     rng = np.random.default_rng(3)

@@ -86,6 +86,7 @@ def test_published_configuration_trains_with_initial_terms() -> None:
     )
 
 
+@pytest.mark.slow
 def test_runs_are_deterministic_for_a_seed() -> None:
     a = train(_tiny("string-forced", iterations=20), progress=False).history
     b = train(_tiny("string-forced", iterations=20), progress=False).history

@@ -62,6 +62,7 @@ def test_a_million_free_steps_keep_the_energy_to_1e_9() -> None:
     assert abs(engine.energy(_free_run(engine, state, 10**6)) / energy - 1.0) <= 1e-9
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("zeta", [0.001, 0.3, 1.0, 3.0])
 def test_damped_energy_never_grows_without_input(zeta: float) -> None:
     engine = ModalEngine(MEMBRANE, 20, 0.002, damping=zeta)

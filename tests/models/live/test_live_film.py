@@ -57,6 +57,7 @@ def membrane_errors() -> dict[float, tuple[float, float, float]]:
     return out
 
 
+@pytest.mark.slow
 def test_truncation_free_stepping_has_the_holds_second_order_error(
     membrane_errors: dict[float, tuple[float, float, float]],
 ) -> None:

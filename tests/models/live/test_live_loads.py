@@ -89,6 +89,7 @@ def test_membrane_load_held_gives_its_poisson_sum(at: tuple[float, float], bound
     assert _relative(_held(bare, [Load(at, 0.2, 0.05)]), truth) > 0.1
 
 
+@pytest.mark.slow
 def test_time_averaged_undamped_response_is_the_static_one() -> None:
     truth = _string_green(np.linspace(0.0, 1.0, 100), 0.61, STRING.c)
     engine = ModalEngine(STRING, 100, 0.0123)
