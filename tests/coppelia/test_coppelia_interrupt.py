@@ -170,7 +170,7 @@ def test_a_swallowed_interrupt_is_kept_off_stderr_but_other_unraisables_are_not(
     finalizer loses is still reported."""
     from membrane_coppelia.interrupt import Interrupted, interrupt_on
 
-    seen: list[type[BaseException]] = []
+    seen: list[type[BaseException] | type[None]] = []
     before = sys.unraisablehook
     sys.unraisablehook = lambda report: seen.append(type(report.exc_value))
     try:
