@@ -58,7 +58,7 @@ EXTRA_FOR_MODULE: dict[str, str] = {
 }
 
 
-# Older installs carry the distribution's former name; the server's `hello` reads the same two.
+# Older installs carry the distribution's former name; the server's `hello` uses this too.
 _DISTRIBUTIONS = (DISTRIBUTION, "membrane")
 
 EPILOG = (

@@ -11,9 +11,9 @@ import functools
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
-from importlib import metadata
 from typing import Any, NamedTuple
 
+from membrane_cli.dispatcher import version
 from membrane_client.protocol import (
     MAX_LATTICE_POINTS,
     MAX_REQUEST_BYTES,
@@ -38,18 +38,11 @@ __all__ = ["Answer", "Dispatcher", "RequestError", "server_version"]
 
 logger = logging.getLogger(__name__)
 
-_DISTRIBUTIONS = ("membrane-tissue", "membrane")
-
-
 @functools.cache
 def server_version() -> str:
-    """'membrane X.Y.Z' from the installed distribution (read once: ``hello`` must stay cheap)."""
-    for distribution in _DISTRIBUTIONS:
-        try:
-            return f"membrane {metadata.version(distribution)}"
-        except metadata.PackageNotFoundError:
-            continue
-    return "membrane (not installed)"
+    """'membrane X.Y.Z', what ``membrane --version`` prints (read once: ``hello`` must stay
+    cheap)."""
+    return version()
 
 
 class Prepared(NamedTuple):
