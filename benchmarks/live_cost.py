@@ -71,8 +71,8 @@ def report(scene: str) -> None:
     print(f"{scene}: budget {engine.budget.max_work / 1e6:g} ms")
     print(f"{'case':40} {'estimate':>9} {'step':>9} {'frame':>9} {'ratio':>6} {'held':>9}")
     for name, loads, probes in cases(engine.spatial_dims, engine.min_radius):
-        sizes = [unlimited._size(Load(x.at, 1.0, x.radius), "load", 0) for x in loads]
-        inside = [unlimited._size(Probe(x.at, 0.0, x.radius), "probe", 0) for x in probes]
+        sizes = [unlimited.footprint_size(Load(x.at, 1.0, x.radius), "load", 0) for x in loads]
+        inside = [unlimited.footprint_size(Probe(x.at, 0.0, x.radius), "probe", 0) for x in probes]
         cost = step_cost(sizes, inside, unlimited.lattice_shape, True)
         if cost.work > _TOO_SLOW_TO_TIME:
             print(f"{name:40} {cost.work / 1e6:9.3f}   (refused; too slow to time)")

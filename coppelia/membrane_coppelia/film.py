@@ -104,11 +104,7 @@ def _loop(
         moved = time.perf_counter()
         lattice.step()
         stepped = time.perf_counter()
-        timings.read.append(clock - start)
-        timings.query.append(queried - clock)
-        timings.move.append(moved - queried)
-        timings.step.append(stepped - moved)
-        timings.total.append(stepped - start)
+        timings.add(start, clock, queried, moved, stepped)
         first_t = t if steps == 0 else first_t
         last_t = t
         steps += 1

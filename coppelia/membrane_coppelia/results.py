@@ -42,6 +42,15 @@ class StepTimings:
     step: list[float] = field(default_factory=list)
     total: list[float] = field(default_factory=list)
 
+    def add(self, start: float, read: float, answered: float, moved: float, stepped: float) -> None:
+        """Record one step from its ``time.perf_counter()`` marks: begun, simulator read,
+        server answered, spheres moved, simulator stepped."""
+        self.read.append(read - start)
+        self.query.append(answered - read)
+        self.move.append(moved - answered)
+        self.step.append(stepped - moved)
+        self.total.append(stepped - start)
+
     def percentiles(self) -> dict[str, dict[str, float]]:
         """``{part: {"p50": s, "p99": s}}`` for the parts measured at least once."""
         parts = {

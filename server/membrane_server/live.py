@@ -61,7 +61,6 @@ __all__ = [
     "LiveOps",
     "build_scene_engine",
     "engine_inputs",
-    "input_error",
     "live_description",
     "wire_error",
 ]
@@ -110,7 +109,7 @@ def engine_inputs(request: Request, dims: int) -> tuple[tuple[Load, ...], tuple[
         loads = schema.loads_from_wire(request.loads or (), dims)
         probes = schema.probes_from_wire(request.probes or (), dims)
     except LiveInputError as exc:
-        raise input_error(exc) from None
+        raise wire_error(exc) from None
     return (
         tuple([Load(*load) for load in loads]),
         tuple([Probe(*probe) for probe in probes]),
@@ -232,16 +231,11 @@ def _session_id(request: Request) -> str:
     return request.session
 
 
-def wire_error(exc: LiveError, what: str = "") -> RequestError:
-    """The one place an engine's refusal becomes a wire error: ``bad_request`` with the
-    engine's message (its errors quote client values bounded; ``error_reply`` caps the length)."""
+def wire_error(exc: LiveError | LiveInputError, what: str = "") -> RequestError:
+    """The one place a refusal of live input becomes a wire error, the engine's (its values)
+    or the live schema's (a wire item's form): ``bad_request`` with its message (both quote
+    client values bounded; ``error_reply`` caps the length)."""
     return RequestError(ErrorCode.BAD_REQUEST, f"{what}{exc}")
-
-
-def input_error(exc: LiveInputError) -> RequestError:
-    """The live schema's refusal of a wire item as a wire error: ``bad_request`` with its
-    message (which quotes client values bounded)."""
-    return RequestError(ErrorCode.BAD_REQUEST, str(exc))
 
 
 def _require_inputs(engine: LiveEngine[Any], **given: object) -> None:
@@ -259,7 +253,7 @@ def _start(engine: LiveEngine[Any], initial: dict[str, Any] | None) -> Start[Any
     try:
         shapes = Initial.from_wire(initial)
     except LiveInputError as exc:
-        raise input_error(exc) from None
+        raise wire_error(exc) from None
     try:
         return engine.start(shapes.displacement, shapes.velocity)
     except LiveError as exc:

@@ -169,8 +169,10 @@ def _worst_legal_step(engine: ModalEngine) -> tuple[list[WireLoad], list[Probe]]
             probe_at = [(0.1 + 0.1 * j,) * dims for j in range(MAX_PROBES)]
             loads = [WireLoad(a, 1.0, radius) for a in load_at]
             probes = [Probe(a, 1e-3, radius) for a in probe_at]
-            sizes = [engine._size(Load(a, 1.0, radius), "load", 0) for a in load_at]
-            inside = [engine._size(EngineProbe(a, 0.0, radius), "probe", 0) for a in probe_at]
+            sizes = [engine.footprint_size(Load(a, 1.0, radius), "load", 0) for a in load_at]
+            inside = [
+                engine.footprint_size(EngineProbe(a, 0.0, radius), "probe", 0) for a in probe_at
+            ]
             cost = step_cost(sizes, inside, engine.lattice_shape, True)
             within = cost.work <= engine.budget.max_work
             held = cost.held_bytes

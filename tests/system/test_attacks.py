@@ -57,15 +57,6 @@ def _report_measured(request: pytest.FixtureRequest) -> Iterator[None]:
         print_past_capture(request, "\nattacks: " + "; ".join(MEASURED))
 
 
-@pytest.fixture
-def watched() -> Iterator[list[WatchedServer]]:
-    """Servers a test starts; killed at teardown."""
-    started: list[WatchedServer] = []
-    yield started
-    for server in started:
-        server.close()
-
-
 def _dealer(address: str) -> zmq.Socket[bytes]:
     return dealer(address, REPLY_TIMEOUT_MS)
 

@@ -53,15 +53,6 @@ def _report_measured(request: pytest.FixtureRequest) -> Iterator[None]:
         print_past_capture(request, "\nserver-loop attacks: " + "; ".join(MEASURED))
 
 
-@pytest.fixture
-def watched() -> Iterator[list[WatchedServer]]:
-    """Servers a test starts; killed at teardown."""
-    started: list[WatchedServer] = []
-    yield started
-    for server in started:
-        server.close()
-
-
 def _big_scene(path: Path, description: str = "100 x 100, live", duration: float = 0.1) -> str:
     path.write_text(
         f'name = "{BIG}"\ndescription = "{description}"\nmodel = "membrane-forced"\n'

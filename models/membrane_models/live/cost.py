@@ -130,17 +130,22 @@ def step_cost(
     return StepCost(work, held)
 
 
+def _largest_counts(prints: Sequence[FootprintSize]) -> list[int]:
+    """Per axis, the longest spectrum among ``prints``: the combined box's extent."""
+    return [max(p.counts[a] for p in prints) for a in range(len(prints[0].counts))]
+
+
 def _combined(prints: Sequence[FootprintSize]) -> float:
     if not prints:
         return 0.0
-    largest = math.prod(max(p.counts[a] for p in prints) for a in range(len(prints[0].counts)))
+    largest = math.prod(_largest_counts(prints))
     return _PRODUCT * len(prints) * largest + _BOX * largest
 
 
 def _synthesis(prints: Sequence[FootprintSize], lattice: tuple[int, ...]) -> float:
     """The frame's sine products: a dense table per axis, or a fold onto the lattice's modes
     past ``synthesis``'s table size (then a pass over the box and one small product)."""
-    counts = [max(p.counts[a] for p in prints) for a in range(len(lattice))]
+    counts = _largest_counts(prints)
     box = math.prod(counts)
     if lattice[0] * counts[0] > DENSE_TABLE_ELEMENTS:
         return _FOLD * box + _SYNTHESIS * lattice[0] * (box // counts[0]) * (lattice[0] - 2)

@@ -209,9 +209,13 @@ class ModalEngine:
     @property
     def memory_bytes(self) -> int:
         """Bytes held: transition coefficients, the residual weights, the sine tables."""
+        return self._coefficient_bytes + self.residual.nbytes + self.synthesis.nbytes
+
+    @property
+    def _coefficient_bytes(self) -> int:
+        """The transition's coefficients and the modes' frequencies (fixed at build)."""
         arrays = [getattr(self.transition, name) for name in self.transition.__dataclass_fields__]
-        held = sum(int(a.nbytes) for a in arrays) + int(self.modes.omega.nbytes)
-        return held + self.residual.nbytes + self.synthesis.nbytes
+        return sum(int(a.nbytes) for a in arrays) + int(self.modes.omega.nbytes)
 
     def start(
         self, displacement: ArrayLike | None = None, velocity: ArrayLike | None = None
@@ -248,9 +252,9 @@ class ModalEngine:
         self._check(state)
         checked_loads = parse_loads(loads, self._dims) if loads else ()
         checked_probes = parse_probes(probes, self._dims) if probes else ()
-        load_sizes = [self._size(ld, "load", i) for i, ld in enumerate(checked_loads)]
+        load_sizes = [self.footprint_size(ld, "load", i) for i, ld in enumerate(checked_loads)]
         probe_sizes = [
-            self._size(pr, "probe", i) if inside_domain(pr.at) else None
+            self.footprint_size(pr, "probe", i) if inside_domain(pr.at) else None
             for i, pr in enumerate(checked_probes)
         ]
         inside = [size for size in probe_sizes if size is not None]
@@ -358,11 +362,9 @@ class ModalEngine:
     def engine_bytes(self) -> int:
         """The most this engine and the footprint caches it shares hold, whatever sessions send:
         its coefficients, the residual weights and the sine tables at their largest."""
-        arrays = [getattr(self.transition, name) for name in self.transition.__dataclass_fields__]
-        held = sum(int(a.nbytes) for a in arrays) + int(self.modes.omega.nbytes)
         weights = 8 * self.max_reach**self._dims if self.residual.enabled else self.residual.nbytes
         tables = sum(2 * 8 * DENSE_TABLE_ELEMENTS for _ in self._lattice)
-        return held + weights + tables + CACHE_BYTES
+        return self._coefficient_bytes + weights + tables + CACHE_BYTES
 
     @property
     def state_bytes(self) -> int:
@@ -374,7 +376,7 @@ class ModalEngine:
 
     # -- the parts of a step ----------------------------------------------------------------
 
-    def _size(self, item: Load | Probe, kind: str, index: int) -> FootprintSize:
+    def footprint_size(self, item: Load | Probe, kind: str, index: int) -> FootprintSize:
         """The spectrum entries a footprint needs per axis (long enough for the static
         correction), from its centre and radius alone: what the cost model prices.
 

@@ -104,7 +104,7 @@ def test_contact_with_a_singular_compliance() -> None:
 def test_residual_cross_compliance_is_symmetric() -> None:
     engine = ModalEngine(make_problem("membrane-forced"), 20, 0.01)
     pa, pb = Probe((0.3, 0.6), 0.0, 0.05), Probe((0.05, 0.5), 0.0, 0.12)
-    a = engine._footprint(pa, engine._size(pa, "probe", 0), "probe")
-    b = engine._footprint(pb, engine._size(pb, "probe", 1), "probe")
+    a = engine._footprint(pa, engine.footprint_size(pa, "probe", 0), "probe")
+    b = engine._footprint(pb, engine.footprint_size(pb, "probe", 1), "probe")
     assert engine.residual.cross(a, b) == pytest.approx(engine.residual.cross(b, a), rel=1e-12)
     assert engine.residual.cross(a, a) > 0.0
