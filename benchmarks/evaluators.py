@@ -87,7 +87,7 @@ def measure(case: Case, server: CaseServer, args: argparse.Namespace) -> Row | N
         open_spec = LoadSpec(mode="open", rate=args.rate, duration=args.duration, warmup=1.0)
         open_report = run_bench(target, open_spec, baseline=True, segments=args.segments)
         with Client(address, timeout=5.0) as client:  # the server's own time per request so far
-            server_side = client.stats()["latency_us"]
+            server_side = client.stats().latency_us or {}
         closed_spec = LoadSpec(
             mode="closed", concurrency=args.concurrency, duration=args.duration, warmup=1.0
         )

@@ -45,7 +45,7 @@ def _start_server(scene: str, serve_args: Sequence[str]) -> tuple[subprocess.Pop
 
 def _handling(address: str) -> dict[str, Any]:
     with Client(address, timeout=5.0) as client:
-        return dict(client.stats()["latency_us"])
+        return dict(client.stats().latency_us or {})
 
 
 def _round(args: argparse.Namespace) -> dict[str, float]:

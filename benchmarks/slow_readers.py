@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
             stats = client.stats()
         print(
             f"{args.peers} peers x {args.requests} describes on {args.scene}: "
-            f"{stats['requests']} answered, dropped {stats['dropped_replies']}"
+            f"{stats.requests} answered, dropped {stats.dropped_replies}"
         )
         print(f"server RSS: peak +{server.growth() / MiB:.0f} MiB over {server.baseline / MiB:.0f}")
         for peer in peers:

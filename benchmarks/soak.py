@@ -193,8 +193,8 @@ def _soak(args: argparse.Namespace, log: IO[bytes]) -> dict[str, Any]:
         "deadline_ms": json.loads(bench.stdout)["config"]["deadline_ms"],
         "latency_us": report["latency_us"],
         "throughput_hz": report["throughput_hz"],
-        "server_requests": stats["requests"],
-        "server_errors": stats["errors"],
+        "server_requests": stats.requests,
+        "server_errors": stats.errors,
         "rss_kib": {
             "idle": idle_rss,
             "start": rss_start,

@@ -21,11 +21,11 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from membrane_client import Client, Frame, SceneInfo
+from membrane_client.replies import StatsReply
 
 logger = logging.getLogger("demo")
 
@@ -81,9 +81,7 @@ def poll(client: Client, info: SceneInfo, fast: bool) -> tuple[list[Frame], np.n
     return frames, latencies
 
 
-def report(
-    info: SceneInfo, frames: list[Frame], latencies: np.ndarray, stats: dict[str, Any]
-) -> None:
+def report(info: SceneInfo, frames: list[Frame], latencies: np.ndarray, stats: StatsReply) -> None:
     """Print what the client saw."""
     shape = " x ".join(str(n) for n in info.shape)
     print(f"scene {info.name}: {info.description}")
@@ -102,7 +100,7 @@ def report(
     p50, p99 = np.percentile(micros, [50, 99])
     print(f"  client round trip over {len(frames)} queries: p50 {p50:.0f} us, p99 {p99:.0f} us, "
           f"max {micros.max():.0f} us")  # fmt: skip
-    server = stats["latency_us"]
+    server = stats.latency_us or {}
     print(f"  server handling ({server['count']} requests): p50 {server['p50']:.0f} us, "
           f"p99 {server['p99']:.0f} us")  # fmt: skip
 

@@ -19,8 +19,8 @@ from membrane_cli.connection import add_connection_arguments, connect
 from membrane_client.client import Client
 from membrane_client.errors import MembraneError, ServerError, UserError
 from membrane_client.frame import Frame
-from membrane_client.protocol import ErrorCode
-from membrane_client.replies import HelloReply, StatsReply
+from membrane_client.protocol import ErrorCode, Op
+from membrane_client.replies import StatsReply
 
 __all__ = ["add_ping", "add_query", "add_stats", "stats_summary"]
 
@@ -102,7 +102,7 @@ def _scene_hint(client: Client, scene: str | None) -> str:
     """What to do about an unknown_scene reply, in the command line's terms: the server's own
     message names the wire field ('scene'); here the fix is the --scene flag."""
     try:
-        hosted = ", ".join(HelloReply.from_reply(client.hello()).scenes)
+        hosted = ", ".join(client.hello().scenes)
     except MembraneError:
         hosted = "?"  # the server stopped answering; the hint still says what to pass
     if scene is None:
@@ -114,7 +114,7 @@ def _run_ping(args: argparse.Namespace) -> int:
     try:
         with connect(args) as client:
             seconds = client.ping()
-            hello = HelloReply.from_reply(client.hello())
+            hello = client.hello()
     except UserError:
         raise  # bad input (an address, a key file): the dispatcher's one line, exit 2
     except MembraneError as exc:
@@ -131,7 +131,7 @@ def _run_ping(args: argparse.Namespace) -> int:
 def _run_stats(args: argparse.Namespace) -> int:
     try:
         with connect(args) as client:
-            stats = client.stats()
+            stats = client.request(Op.STATS)
             typed = StatsReply.from_reply(stats)
     except UserError:
         raise  # bad input (an address, a key file): the dispatcher's one line, exit 2

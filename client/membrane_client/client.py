@@ -15,6 +15,7 @@ import zmq
 from membrane_client.errors import MembraneError, UserError
 from membrane_client.frame import Frame, SceneInfo
 from membrane_client.protocol import Op, Request, read_reply
+from membrane_client.replies import HelloReply, StatsReply
 from membrane_client.session import Session
 from membrane_client.transport import LazyPirate, Transport
 
@@ -77,10 +78,13 @@ class Client:
 
     # -- the public operations ---------------------------------------------------------------
 
-    def hello(self) -> dict[str, Any]:
-        """The server's protocol version, software version, ops, scenes and limits: the reply's
-        map (``replies.HelloReply.from_reply`` reads it typed)."""
-        return self.request(Op.HELLO)
+    def hello(self) -> HelloReply:
+        """The server's protocol version, software version, ops, scenes and limits.
+
+        Raises:
+            ProtocolError: a reply that is not a hello reply.
+        """
+        return HelloReply.from_reply(self.request(Op.HELLO))
 
     def describe(self, scene: str | None = None, *, refresh: bool = False) -> SceneInfo:
         """The scene's lattice, placement and time grid (cached per scene after the first call)."""
@@ -118,10 +122,14 @@ class Client:
         """
         return Session(self, scene or self.scene).open(**(initial or {}))
 
-    def stats(self) -> dict[str, Any]:
-        """The server's counters and latency percentiles: the reply's map, printed as it came
-        by ``membrane stats --json`` (``replies.StatsReply.from_reply`` reads it typed)."""
-        return self.request(Op.STATS)
+    def stats(self) -> StatsReply:
+        """The server's counters and latency percentiles (``request(Op.STATS)`` gives the
+        reply's map as it came, which ``membrane stats --json`` prints).
+
+        Raises:
+            ProtocolError: a named figure of the wrong type.
+        """
+        return StatsReply.from_reply(self.request(Op.STATS))
 
     def ping(self) -> float:
         """One ``ping`` round trip; returns its duration in seconds."""

@@ -16,15 +16,16 @@ import numpy as np
 import scipy.fft
 from numpy.typing import NDArray
 
-from membrane_models.exact.solution import (
-    MemoryBudgetExceeded,
-)
+from membrane_models.budget import MemoryBudgetExceeded
 
 __all__ = [
     "ChunkedSineSum",
     "DenseSineSum",
     "GridSineSum",
     "SineSum",
+    "axis_sines",
+    "fold_axis",
+    "lattice_sines",
     "sine_basis",
     "sine_sum",
     "uniform_grid_shape",
@@ -269,8 +270,38 @@ def sine_basis(
     return out
 
 
+def axis_sines(x: FloatArray, count: int) -> FloatArray:
+    """sin(m pi x) for m = 1 .. count: shape (len(x), count), the bits of ``sine_basis``."""
+    out = np.empty((x.size, count))
+    _axis_sines(x, np.arange(1, count + 1), out)
+    return out
+
+
+def lattice_sines(points: int, count: int) -> FloatArray:
+    """sin(m pi i / N) on the uniform lattice i = 0 .. N (N = points - 1), m = 1 .. count,
+    with the clamped end rows exactly 0: shape (points, count)."""
+    table = axis_sines(np.arange(points, dtype=np.float64) / (points - 1), count)
+    table[[0, -1]] = 0.0
+    return table
+
+
+def fold_axis(z: FloatArray, axis: int, intervals: int) -> FloatArray:
+    """Coefficients of modes 1 .. M along ``axis`` folded onto the modes 1 .. N - 1 a lattice
+    of N intervals resolves: sin(m pi i / N) is 2N-periodic and odd about N in m, so mode m
+    adds to j = m mod 2N with sign +, or to 2N - j with sign - (``_fold_modes``'s rule, for a
+    dense box of coefficients)."""
+    period = 2 * intervals
+    moved = np.moveaxis(z, axis, 0)
+    count = moved.shape[0]
+    length = period * math.ceil((count + 1) / period)
+    padded = np.zeros((length, *moved.shape[1:]))
+    padded[1 : count + 1] = moved  # row m holds mode m (row 0: mode 0, nothing)
+    sums = padded.reshape(length // period, period, *moved.shape[1:]).sum(axis=0)
+    folded = sums[1:intervals] - sums[period - 1 : intervals : -1]  # m = j and m = 2N - j
+    return np.moveaxis(folded, 0, axis)
+
+
 def _axis_sines(x: FloatArray, m: IntArray, out: FloatArray) -> None:
     np.multiply.outer(x, m, out=out)
     np.multiply(np.pi, out, out=out)
     np.sin(out, out=out)
-

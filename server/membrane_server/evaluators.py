@@ -30,7 +30,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from membrane_models.artifacts.manifest import Manifest
-from membrane_models.exact.solution import ExactSolution, MemoryBudgetExceeded, PointFrames
+from membrane_models.budget import MemoryBudgetExceeded
+from membrane_models.exact.solution import ExactSolution, PointFrames
 from membrane_models.problems import Problem
 from membrane_server.runtime import GraphRunner, load_graph
 from membrane_server.scene import DEFAULT_TABLE_MAX_BYTES, Scene, SceneError

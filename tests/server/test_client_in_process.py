@@ -88,7 +88,7 @@ def test_an_unknown_scene_and_a_second_scene(rope: ServedScene) -> None:
         assert refused.value.code == ErrorCode.UNKNOWN_SCENE
         assert client.query(0.1, scene="short").z.shape == (3,)
         assert client.query(0.1, scene="rope").z.shape == (11,)
-        assert sorted(client.hello()["scenes"]) == ["rope", "short"]
+        assert sorted(client.hello().scenes) == ["rope", "short"]
 
 
 def test_a_reloaded_scene_is_described_again(rope: ServedScene) -> None:

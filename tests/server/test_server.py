@@ -266,14 +266,14 @@ def test_describe_exact_scene_reports_modes(evaluator_server: Server) -> None:
 def test_hello_lists_scenes_and_limits(evaluator_server: Server) -> None:
     with Client(evaluator_server.address, timeout=5.0, session="me") as client:
         hello = client.hello()
-    assert hello["protocol"] == 1
-    assert hello["server"].startswith("membrane ")
-    assert set(hello["scenes"]) == set(EVALUATOR_KINDS)
-    assert hello["default_scene"] is None
-    assert hello["session"] == "me"
+    assert hello.protocol == 1
+    assert hello.server.startswith("membrane ")
+    assert set(hello.scenes) == set(EVALUATOR_KINDS)
+    assert hello.default_scene is None
+    assert hello.session == "me"
     film = {"hello", "describe", "query", "stats", "ping"}
-    assert set(hello["ops"]) == film | {"open", "step", "read", "reset", "close"}
-    assert hello["limits"]["max_request_bytes"] == MAX_REQUEST_BYTES
+    assert set(hello.ops) == film | {"open", "step", "read", "reset", "close"}
+    assert hello.limits is not None and hello.limits.max_request_bytes == MAX_REQUEST_BYTES
 
 
 def test_stats_count_requests_errors_and_latency(start_server: Any, make_scene: Any) -> None:
@@ -285,15 +285,15 @@ def test_stats_count_requests_errors_and_latency(start_server: Any, make_scene: 
             client.query(2.0)
         client.ping()
         stats = client.stats()
-    assert stats["requests"] == 13  # describe + 10 queries + 1 refused + ping
-    assert stats["ops"] == {"describe": 1, "query": 11, "ping": 1}
-    assert stats["errors"] == {"out_of_domain": 1}
-    assert stats["scenes"] == {"s": 10}
-    assert stats["sessions"] == 1
-    latency = stats["latency_us"]
-    assert latency["count"] == 13
+    assert stats.requests == 13  # describe + 10 queries + 1 refused + ping
+    assert stats.ops == {"describe": 1, "query": 11, "ping": 1}
+    assert stats.errors == {"out_of_domain": 1}
+    assert stats.scenes == {"s": 10}
+    assert stats.sessions == 1
+    latency = stats.latency_us
+    assert latency is not None and latency["count"] == 13
     assert 0 < latency["p50"] <= latency["p90"] <= latency["p99"] <= latency["max"]
-    assert stats["uptime_s"] > 0
+    assert stats.uptime_s is not None and stats.uptime_s > 0
 
 
 def test_single_scene_server_needs_no_scene_name(membrane_server: Server) -> None:

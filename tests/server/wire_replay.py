@@ -110,6 +110,54 @@ def record() -> None:
     print(f"recorded {len(pairs)} requests and replies in {RECORDING}")
 
 
+# Numbers may differ from the recording in their last digits where numpy's vectorised sin, exp
+# or BLAS differ between builds (numpy 2.4.6 against the recording's build: at most 2 ulps, in
+# frames and probe readings): that is arithmetic, not the wire. Everything else (keys, their
+# order, types, strings, shapes) must match exactly.
+ULPS = 8
+
+
+def differences(after: Any, before: Any, where: str = "") -> list[str]:
+    """Where two decoded replies differ beyond ``ULPS`` units in the last place of a number."""
+    if isinstance(before, dict) and isinstance(after, dict):
+        if list(after) != list(before):
+            return [f"{where}: keys {list(after)} != {list(before)}"]
+        if "dtype" in before and isinstance(before.get("data"), bytes):
+            return _array_differences(after, before, where)
+        return [d for k in before for d in differences(after[k], before[k], f"{where}.{k}")]
+    if isinstance(before, list) and isinstance(after, list):
+        if len(after) != len(before):
+            return [f"{where}: {len(after)} items != {len(before)}"]
+        return [
+            d
+            for i, (a, b) in enumerate(zip(after, before, strict=True))
+            for d in differences(a, b, f"{where}[{i}]")
+        ]
+    if type(after) is not type(before):
+        return [f"{where}: {type(after).__name__} != {type(before).__name__}"]
+    if isinstance(before, float):
+        if before == after or (np.isnan(before) and np.isnan(after)):
+            return []
+        gap = abs(after - before) / max(np.spacing(abs(before)), np.spacing(abs(after)))
+        return [] if gap <= ULPS else [f"{where}: {after!r} != {before!r}"]
+    return [] if after == before else [f"{where}: {str(after)[:80]} != {str(before)[:80]}"]
+
+
+def _array_differences(after: dict[str, Any], before: dict[str, Any], where: str) -> list[str]:
+    head = {k: v for k, v in before.items() if k != "data"}
+    if {k: v for k, v in after.items() if k != "data"} != head:
+        return [f"{where}: array header {after} != {head}"]
+    a = np.frombuffer(after["data"], dtype=after["dtype"])
+    b = np.frombuffer(before["data"], dtype=before["dtype"])
+    if a.shape != b.shape:
+        return [f"{where}: {a.size} values != {b.size}"]
+    if not np.issubdtype(b.dtype, np.floating):
+        return [] if np.array_equal(a, b) else [f"{where}: values differ"]
+    spacing = np.maximum(np.spacing(np.abs(b)), np.spacing(np.abs(a)))
+    gap = float(np.max(np.abs(a - b) / spacing, initial=0.0))
+    return [] if gap <= ULPS else [f"{where}: values differ by {gap:.3g} ulps"]
+
+
 def recorded() -> list[tuple[bytes, bytes]]:
     pairs = msgpack.unpackb(RECORDING.read_bytes(), raw=False)
     return [(bytes(request), bytes(reply)) for request, reply in pairs]

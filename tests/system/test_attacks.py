@@ -188,7 +188,7 @@ def test_peers_that_never_read_are_held_to_their_budget(
                 peer.send_multipart([b"", describe])
         time.sleep(3.0)  # the server answers all 1,000 (a few ms each)
         with Client(server.address, timeout=5.0, scene=GOOD_SCENE) as client:
-            dropped = client.stats()["dropped_replies"]
+            dropped = client.stats().dropped_replies or {}
         assert dropped.get("peer_not_reading", 0) > 0
     finally:
         for peer in peers:
@@ -280,7 +280,7 @@ def test_refused_session_ids_are_not_recorded(watched: list[WatchedServer]) -> N
             reply = _exchange(dealer, Request("ping", k, session=session).to_wire())
             assert reply["error"]["code"] == "bad_request"  # type: ignore[index]
         with Client(server.address, timeout=5.0) as client:
-            assert client.stats()["sessions"] <= 2  # the good client's and this one's
+            assert (client.stats().sessions or 0) <= 2  # the good client's and this one's
     finally:
         dealer.close()
     # 1,500 x 65 KB = 98 MB would stay if the ids were kept.

@@ -98,7 +98,7 @@ def _survived(
 
 def _stats(server: WatchedServer) -> dict[str, Any]:
     with Client(server.address, timeout=5.0) as client:
-        return client.stats()
+        return client.request("stats")
 
 
 # -- S5. a client that reads every reply loses none when it pipelines ----------------------------
@@ -117,7 +117,7 @@ def test_a_pipelining_client_that_reads_loses_no_reply(
     undisturbed = good.measure(UNDISTURBED_S)
     peers = _stats(server).get("peers", {})
     with Client(server.address, timeout=5.0) as client:
-        limits = client.hello()["limits"]
+        limits = client.request("hello")["limits"]
     # hello states it (the dispatcher's); the server's own figures say the same.
     in_flight = int(limits.get("max_in_flight", peers.get("max_in_flight", 16)))
     assert in_flight >= 10  # a session at membrane-live's 1 kHz pipelining over 10 ms

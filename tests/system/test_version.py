@@ -68,7 +68,7 @@ def test_version_flag_hello_and_changelog_agree(membrane_server: Server) -> None
     cli_version = result.stdout.strip()
 
     with Client(membrane_server.address, timeout=5.0) as client:
-        server_version = client.hello()["server"]
+        server_version = client.hello().server
 
     released = top_released_version(CHANGELOG.read_text())
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]

@@ -56,7 +56,6 @@ from membrane_client.frame import SceneInfo
 from membrane_client.live_limits import LiveLimits
 from membrane_client.live_schema import Probe
 from membrane_client.protocol import ErrorCode
-from membrane_client.replies import StatsReply
 from membrane_client.session import Session
 from membrane_errors import MembraneError
 from membrane_view.guard import guard, new_token, security_headers
@@ -420,7 +419,7 @@ class Player:
 
     def _stats(self) -> dict[str, Any]:
         assert self.client is not None
-        stats = StatsReply.from_reply(self.client.stats())
+        stats = self.client.stats()
         latency = stats.latency_us or {}
         return {
             "requests": stats.requests,

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from membrane_models.budget import MemoryBudgetExceeded
 from membrane_models.exact.forced import ForcedModalSolution, forced_modal_solution
 from membrane_models.exact.kirchhoff_carrier import KirchhoffReference
 from membrane_models.exact.plucked import PluckedDAlembert, PluckedFourier
@@ -22,7 +23,6 @@ from membrane_models.exact.solution import (
     ExactSolution,
     FrameFunction,
     InvalidQuery,
-    MemoryBudgetExceeded,
     PointFrames,
 )
 from membrane_models.problems import (

@@ -46,7 +46,6 @@ the modes' values there, ``sine_sum`` chooses how:
   the frames are refused with the figure.
 """
 
-
 from __future__ import annotations
 
 import logging
@@ -56,6 +55,7 @@ import time
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from membrane_models.budget import check_budget
 from membrane_models.exact.duhamel import (
     BumpResponse,
 )
@@ -74,7 +74,6 @@ from membrane_models.exact.mode_selection import (
 from membrane_models.exact.solution import (
     ExactSolution,
     PointFrames,
-    check_budget,
 )
 from membrane_models.problems import MembraneForced, StringForced, time_bump
 from membrane_models.sines import sine_basis, sine_sum, uniform_grid_shape

@@ -29,7 +29,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import solve_ivp
 from scipy.special import ellipk
 
-from membrane_models.exact.solution import ExactSolution, InvalidQuery, PointFrames, check_budget
+from membrane_models.budget import check_budget
+from membrane_models.exact.solution import ExactSolution, InvalidQuery, PointFrames
 from membrane_models.problems import InvalidProblem, StringKirchhoff
 
 __all__ = [

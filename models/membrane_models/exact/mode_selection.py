@@ -13,14 +13,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from membrane_models.budget import check_budget
 from membrane_models.exact.duhamel import (
     BumpResponse,
     bump_amplitude_factor,
     bump_integral,
     quasi_static_constant,
-)
-from membrane_models.exact.solution import (
-    check_budget,
 )
 from membrane_models.exact.spectrum import GaussianProfile, gaussian_sine_integrals
 from membrane_models.problems import MembraneForced, StringForced
@@ -314,5 +312,3 @@ def fit_table(
 
 
 # -- sums of sine modes at fixed points ------------------------------------------------------
-
-

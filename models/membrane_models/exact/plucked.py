@@ -28,7 +28,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtr
 
-from membrane_models.exact.solution import ExactSolution, PointFrames, check_budget
+from membrane_models.budget import check_budget
+from membrane_models.exact.solution import ExactSolution, PointFrames
 from membrane_models.problems import StringPlucked
 
 __all__ = ["MAX_FOURIER_MODES", "PluckedDAlembert", "PluckedFourier", "pluck_extension"]

@@ -35,9 +35,7 @@ __all__ = [
     "ExactSolution",
     "FrameFunction",
     "InvalidQuery",
-    "MemoryBudgetExceeded",
     "PointFrames",
-    "check_budget",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -49,30 +47,6 @@ _DOMAIN_SLACK = 1e-12
 
 class InvalidQuery(UserError):
     """Points or times an exact solution cannot be evaluated at."""
-
-
-class MemoryBudgetExceeded(UserError):
-    """A solution, or its frames on a set of points, would need more memory than allowed.
-
-    Raised before the memory is allocated.
-
-    Attributes:
-        what: what needs the memory, in words.
-        needed: bytes it needs.
-        budget: bytes allowed.
-    """
-
-    def __init__(self, what: str, needed: int, budget: int) -> None:
-        super().__init__(f"{what} needs {needed} bytes, more than the {budget} allowed")
-        self.what = what
-        self.needed = int(needed)
-        self.budget = int(budget)
-
-
-def check_budget(what: str, needed: int, budget: int | None) -> None:
-    """Raise ``MemoryBudgetExceeded`` when ``needed`` bytes exceed ``budget`` (None: no limit)."""
-    if budget is not None and needed > budget:
-        raise MemoryBudgetExceeded(what, needed, budget)
 
 
 @dataclass(frozen=True)

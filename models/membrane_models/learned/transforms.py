@@ -28,6 +28,7 @@ from torch import Tensor, nn
 
 from membrane_models.learned.networks import Jet, SeparableCore, grid_points
 from membrane_models.problems import MembraneForced, Problem, StringForced, StringPlucked
+from membrane_models.sines import axis_sines
 
 __all__ = [
     "PhysicalModel",
@@ -48,7 +49,7 @@ def _static_peak(force: np.ndarray, c: float, dims: int) -> float:
     n = force.shape[0]
     s = (np.arange(n) + 0.5) / n
     k = np.arange(1, n + 1)
-    sines = np.sin(math.pi * np.outer(k, s))  # (modes, points)
+    sines = axis_sines(s, n).T  # (modes, points)
     if dims == 1:
         coeffs = 2.0 / n * sines @ force
         u = sines.T @ (coeffs / (c * math.pi * k) ** 2)

@@ -30,6 +30,7 @@ __all__ = [
     "StepCost",
     "StepTooCostly",
     "step_cost",
+    "table_step_cost",
 ]
 
 # About 5 ms of one core: a step's worst legal cost, bounded so that one session cannot hold
@@ -154,3 +155,14 @@ def _synthesis(prints: Sequence[FootprintSize], lattice: tuple[int, ...]) -> flo
 
 def _edge_entries(footprint: FootprintSize) -> int:
     return sum(n * e for n, e in zip(footprint.counts, footprint.edges, strict=True))
+
+
+def table_step_cost(loads: int, probes: int, modes: int, points: int) -> StepCost:
+    """The estimated cost of a step of a tabulated basis (``tabulated_basis``): every
+    footprint's modal force (a table lookup over the modes), the probes' products with one
+    another, and the frame (the mode table times q). The footprints hold one float per mode."""
+    prints = loads + probes
+    pairs = probes * (probes + 1) // 2
+    work = _FOOTPRINT * prints + _PAIR * pairs + _CROSS * modes * (prints + pairs)
+    work += _SYNTHESIS * points * modes
+    return StepCost(work, 8 * modes * prints)

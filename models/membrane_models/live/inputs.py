@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TypeVar
 
 import numpy as np
@@ -43,13 +43,20 @@ MAX_RADIUS = 10.0  # wider, a Gaussian is uniform over the domain to within 1 %
 _Item = TypeVar("_Item", Load, Probe)
 
 
-def parse_loads(loads: Sequence[Load], dims: int) -> tuple[Load, ...]:
-    """``loads`` as checked ``Load`` objects (finite force, radius >= 0, centre in the domain).
+def parse_loads(
+    loads: Sequence[Load],
+    dims: int,
+    contains: Callable[[tuple[float, ...]], bool] | None = None,
+) -> tuple[Load, ...]:
+    """``loads`` as checked ``Load`` objects (finite force, radius >= 0, centre in the domain:
+    ``contains``'s, the unit interval or square by default).
 
     Raises:
         InvalidLoad: what is wrong, and with which load.
     """
     items = _bounded(loads, MAX_LOADS, "loads", InvalidLoad)
+    inside = inside_domain if contains is None else contains
+    domain = "the unit domain" if inside is inside_domain else "the domain"
     out = []
     for index, item in enumerate(items):
         if (
@@ -57,7 +64,7 @@ def parse_loads(loads: Sequence[Load], dims: int) -> tuple[Load, ...]:
             and _clean(item.at, dims, item.radius, item.radius)
             and type(item.force) is float
             and -MAX_FORCE <= item.force <= MAX_FORCE
-            and inside_domain(item.at)
+            and inside(item.at)
         ):
             out.append(item)
             continue
@@ -68,8 +75,8 @@ def parse_loads(loads: Sequence[Load], dims: int) -> tuple[Load, ...]:
             reason = f"|force| must be at most {MAX_FORCE:g}, got {force:.6g}"
             raise InvalidLoad(f"load {index}: {reason}")
         radius = _radius(load.radius, f"load {index}", InvalidLoad)
-        if not inside_domain(at):
-            raise InvalidLoad(f"load {index}: at {_coords(at)} lies outside the unit domain")
+        if not inside(at):
+            raise InvalidLoad(f"load {index}: at {_coords(at)} lies outside {domain}")
         out.append(Load(at, force, radius))
     return tuple(out)
 

@@ -19,7 +19,7 @@ from membrane_models.live.errors import InvalidShape
 from membrane_models.live.modes import ModeSet
 from membrane_models.live.synthesis import LatticeSynthesis
 
-__all__ = ["MAX_SHAPE_VALUE", "project"]
+__all__ = ["MAX_SHAPE_VALUE", "checked_shape", "project"]
 
 MAX_SHAPE_VALUE = 1e3  # the largest |value| of an initial displacement or velocity
 
@@ -41,6 +41,28 @@ def project(
         InvalidShape: wrong size, or not finite.
     """
     lattice = synthesis.shape
+    values = checked_shape(shape, lattice, what).reshape(lattice)
+    coefficients = values
+    for axis, n in enumerate(lattice):
+        table = synthesis.resolved(axis) * (2.0 / (n - 1))
+        coefficients = np.moveaxis(np.tensordot(table.T, coefficients, axes=([1], [axis])), 0, axis)
+    box = np.zeros(modes.box)
+    common = tuple(slice(0, min(k, c)) for k, c in zip(modes.box, coefficients.shape, strict=True))
+    box[common] = coefficients[common]
+    box *= modes.kept
+    norm = float(np.linalg.norm(values))
+    if norm == 0.0:
+        return box, 0.0
+    residual = float(np.linalg.norm(values.reshape(-1) - synthesis.frame(box))) / norm
+    return box, residual
+
+
+def checked_shape(shape: ArrayLike, lattice: tuple[int, ...], what: str) -> FloatArray:
+    """``shape`` as a flat float array of the lattice's size, finite and within range.
+
+    Raises:
+        InvalidShape: wrong size, not numbers, not finite, or beyond ``MAX_SHAPE_VALUE``.
+    """
     try:
         values = np.asarray(shape, dtype=np.float64)
     except (TypeError, ValueError):
@@ -57,17 +79,4 @@ def project(
             f"the initial {what} must stay within +-{MAX_SHAPE_VALUE:g} problem units "
             "(the linear model's range; a larger value would overflow its sums)"
         )
-    values = values.reshape(lattice)
-    coefficients = values
-    for axis, n in enumerate(lattice):
-        table = synthesis.resolved(axis) * (2.0 / (n - 1))
-        coefficients = np.moveaxis(np.tensordot(table.T, coefficients, axes=([1], [axis])), 0, axis)
-    box = np.zeros(modes.box)
-    common = tuple(slice(0, min(k, c)) for k, c in zip(modes.box, coefficients.shape, strict=True))
-    box[common] = coefficients[common]
-    box *= modes.kept
-    norm = float(np.linalg.norm(values))
-    if norm == 0.0:
-        return box, 0.0
-    residual = float(np.linalg.norm(values.reshape(-1) - synthesis.frame(box))) / norm
-    return box, residual
+    return values.reshape(-1)

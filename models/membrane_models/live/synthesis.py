@@ -4,15 +4,16 @@ The value at the lattice of sum_m Z_m prod sin(m pi x) is a product of per-axis 
 T[i, m] = sin(m pi i / N) with the coefficients: T z (string), T_x Z T_y^T (membrane), two
 small matrix products for a separable box. Coefficients beyond the tables (a static correction
 reaching thousands of modes) are folded first: sin(m pi i / N) is 2N-periodic and odd about N in
-m, so mode m adds, with a sign, to one of 1 .. N - 1 (the modes the lattice resolves).
+m, so mode m adds, with a sign, to one of 1 .. N - 1 (the modes the lattice resolves). The
+tables and the fold are the shared sine kernel's (``membrane_models.sines``).
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numpy.typing import NDArray
+
+from membrane_models.sines import fold_axis, lattice_sines
 
 __all__ = ["DENSE_TABLE_ELEMENTS", "LatticeSynthesis"]
 
@@ -65,21 +66,8 @@ class LatticeSynthesis:
         return np.asarray((factors[0] @ z @ factors[1].T).reshape(-1))
 
     def _table(self, axis: int, count: int) -> FloatArray:
-        n = self.shape[axis]
-        i = np.arange(n, dtype=np.float64) / self._intervals[axis]
-        table = np.sin(np.pi * np.outer(i, np.arange(1, count + 1)))
-        table[[0, -1]] = 0.0  # the clamped ends, exactly
-        return table
+        return lattice_sines(self.shape[axis], count)
 
     def _fold(self, z: FloatArray, axis: int) -> FloatArray:
         """Coefficients of modes 1 .. M folded onto 1 .. N - 1 along ``axis``."""
-        n = self._intervals[axis]
-        period = 2 * n
-        moved = np.moveaxis(z, axis, 0)
-        count = moved.shape[0]
-        length = period * math.ceil((count + 1) / period)
-        padded = np.zeros((length, *moved.shape[1:]))
-        padded[1 : count + 1] = moved  # row m holds mode m (row 0: mode 0, nothing)
-        sums = padded.reshape(length // period, period, *moved.shape[1:]).sum(axis=0)
-        folded = sums[1:n] - sums[period - 1 : n : -1]  # m = j and m = 2N - j (sign -)
-        return np.moveaxis(folded, 0, axis)
+        return fold_axis(z, axis, self._intervals[axis])

@@ -1,0 +1,438 @@
+"""The stepping core: damped modal oscillators under loads and probes, over any modal basis.
+
+Each mode is a damped oscillator q'' + 2 zeta w q' + w^2 q = p, p the modal force. The core
+advances every stepped mode exactly by a 2 x 2 transition per step (``transition``: zero-order
+hold by default, first-order hold for loads that ramp between steps), solves probe contact
+exactly at the end of each step (``contact``) and asks the basis (``basis.ModalBasis``) for
+everything that depends on the modes: footprints, the static correction, frames and initial
+shapes. The sine engine (``engine.ModalEngine``) is this core over the sine basis; FEM modes
+plug in as a tabulated basis (``tabulated_basis``).
+
+With s a footprint's modal force per unit force and ``scale`` the basis's weight, the
+footprint-weighted displacement of the stepped modes is z = scale s . q and their energy
+scale / 2 sum (v^2 + w^2 q^2).
+
+Per step (zero-order hold; first-order hold ramps the loads' modal force from the last step's):
+
+1. the loads' modal force p at the end of the step; the free step q_f, v_f;
+2. each probe's free displacement z_f = scale s . q_f + sum_loads F r(load, probe) and the
+   one-step compliance C_ij = scale sum G_q s_i s_j + r(i, j), r the static correction's;
+3. the contact forces from the complementarity problem, applied over the step
+   (q = q_f - sum F_j G_q s_j, and so for v);
+4. the frame: the stepped modes plus the static response of the others to every force acting.
+
+Contact forces are held over the step under either hold: they are this step's unknowns.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Generic
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from membrane_models.live.basis import FootprintT, ModalBasis
+from membrane_models.live.contact import single_contact, solve_contact
+from membrane_models.live.cost import StepBudget
+from membrane_models.live.errors import (
+    InvalidEngineSettings,
+    InvalidLoad,
+    InvalidProbe,
+    InvalidState,
+)
+from membrane_models.live.inputs import (
+    MAX_DEPTH,
+    MAX_FORCE,
+    MAX_LOADS,
+    MAX_PROBES,
+    MAX_RADIUS,
+    parse_loads,
+    parse_probes,
+)
+from membrane_models.live.interface import (
+    ENGINE_INPUTS,
+    Hold,
+    Load,
+    Probe,
+    ProbeReading,
+    Start,
+    StepResult,
+)
+from membrane_models.live.projection import MAX_SHAPE_VALUE
+from membrane_models.live.transition import Transition, transition
+
+__all__ = ["ModalState", "ModalStepper"]
+
+FloatArray = NDArray[np.float64]
+
+# Python objects around a state's arrays (the dataclass, tuples, array headers), and around each
+# applied footprint (its dataclass, tuples, array headers): tracemalloc's figures, rounded up.
+_STATE_OVERHEAD = 2048
+_FOOTPRINT_OVERHEAD = 768
+_NAN = math.nan
+
+
+@dataclass(frozen=True)
+class ModalState:
+    """A modal engine's state: immutable, so a refused or retried step leaves it as it was.
+
+    Attributes:
+        step: steps taken.
+        time: step * dt.
+        q, v: the stepped modes' amplitudes and velocities (on the basis's mode box, 0 off it).
+        load_force: the loads' modal force at the end of the last step (where a first-order
+            hold starts the next ramp).
+        applied: the forces acting at the end of the last step, with their footprints (the
+            static correction's share of the frame).
+    """
+
+    step: int
+    time: float
+    q: FloatArray
+    v: FloatArray
+    load_force: FloatArray
+    applied: tuple[tuple[Any, float], ...] = ()
+    owner: object = field(default=None, repr=False, compare=False)
+
+
+class ModalStepper(Generic[FootprintT]):
+    """The live engine over a modal basis (``LiveEngine[ModalState]``).
+
+    Args:
+        basis: the modes, their footprints, static correction and frames.
+        dt: the step (the basis's time units), > 0.
+        damping: modal damping ratio zeta >= 0, one for every mode.
+        hold: "zoh" (loads constant over a step) or "foh" (linear from the last step's).
+        budget: the most one step may cost (``cost.StepBudget``; default 5 ms of work and
+            512 KiB of held spectra); a step over it is refused with its figure.
+
+    Raises:
+        InvalidEngineSettings: a setting out of range.
+    """
+
+    def __init__(
+        self,
+        basis: ModalBasis[FootprintT],
+        dt: float,
+        *,
+        damping: float = 0.0,
+        hold: Hold = "zoh",
+        budget: StepBudget | None = None,
+    ) -> None:
+        self.basis = basis
+        self._dims = basis.spatial_dims
+        self._lattice = basis.lattice_shape
+        self._dt = positive(dt, "dt")
+        self.damping = damping_ratio(damping)
+        if hold not in ("zoh", "foh"):
+            raise InvalidEngineSettings(f"hold must be 'zoh' or 'foh', got {str(hold)[:20]!r}")
+        self.hold: Hold = hold
+        self.modes = basis.modes
+        self.transition: Transition = _masked(
+            transition(self.modes.omega, self.damping, self._dt), self.modes.kept
+        )
+        self.budget = budget if budget is not None else StepBudget()
+        self._scale = basis.scale
+        self._owner = object()
+        self._zeros = np.zeros(self.modes.box)
+        self._zeros.setflags(write=False)
+        self._energy_weights = self._scale * 0.5 * np.where(self.modes.kept, self.modes.omega**2, 0)
+
+    # -- the interface ----------------------------------------------------------------------
+
+    @property
+    def spatial_dims(self) -> int:
+        return self._dims
+
+    @property
+    def lattice_shape(self) -> tuple[int, ...]:
+        return self._lattice
+
+    @property
+    def dt(self) -> float:
+        return self._dt
+
+    @property
+    def inputs(self) -> frozenset[str]:
+        """Loads, probes and initial shapes: everything the interface offers."""
+        return ENGINE_INPUTS
+
+    @property
+    def memory_bytes(self) -> int:
+        """Bytes held: transition coefficients and the basis's tables."""
+        return self._coefficient_bytes + self.basis.memory_bytes
+
+    @property
+    def _coefficient_bytes(self) -> int:
+        """The transition's coefficients and the modes' frequencies (fixed at build)."""
+        arrays = [getattr(self.transition, name) for name in self.transition.__dataclass_fields__]
+        return sum(int(a.nbytes) for a in arrays) + int(self.modes.omega.nbytes)
+
+    @property
+    def engine_bytes(self) -> int:
+        """The most this engine and the caches it shares hold, whatever sessions send."""
+        return self._coefficient_bytes + self.basis.engine_bytes
+
+    @property
+    def state_bytes(self) -> int:
+        """The most one state holds: q, v and the held load force on the mode box, and the
+        applied footprints' spectra within the budget (with their objects)."""
+        arrays = 3 * 8 * math.prod(self.modes.box)
+        footprints = (MAX_LOADS + MAX_PROBES) * _FOOTPRINT_OVERHEAD
+        return arrays + self.budget.max_held_bytes + footprints + _STATE_OVERHEAD
+
+    def start(
+        self, displacement: ArrayLike | None = None, velocity: ArrayLike | None = None
+    ) -> Start[ModalState]:
+        """The state at t = 0, at rest or from shapes on the lattice (least-squares projection).
+
+        Raises:
+            InvalidShape: a shape of the wrong size, or with NaN or inf.
+        """
+        q, q_residual = self._project(displacement, "displacement")
+        v, v_residual = self._project(velocity, "velocity")
+        state = ModalState(0, 0.0, q, v, self._zeros, (), self._owner)
+        return Start(state, q_residual, v_residual)
+
+    def step(
+        self,
+        state: ModalState,
+        loads: Sequence[Load] = (),
+        probes: Sequence[Probe] = (),
+        *,
+        frame: bool = True,
+        work: bool = False,
+    ) -> StepResult[ModalState]:
+        """One step under ``loads`` (held or ramped) and ``probes`` (contact at its end).
+
+        Args:
+            frame: synthesise the frame (a haptic loop asks for one every few steps).
+            work: report the work done on the stepped modes (zero-order hold only).
+
+        Raises:
+            InvalidLoad, InvalidProbe: bad input; ``state`` is unchanged (it always is).
+            InvalidState: a state from another engine.
+        """
+        self._check(state)
+        basis = self.basis
+        checked_loads = parse_loads(loads, self._dims, basis.contains) if loads else ()
+        checked_probes = parse_probes(probes, self._dims) if probes else ()
+        load_prints, probe_prints = basis.footprints(checked_loads, checked_probes, self.budget)
+        load_forces = [ld.force for ld in checked_loads]
+        tr, q0, v0 = self.transition, state.q, state.v
+        p1 = self._modal_force(load_prints, load_forces)
+        q = tr.qq * q0
+        q += tr.qv * v0
+        v = tr.vq * q0
+        v += tr.vv * v0
+        if self.hold == "foh":
+            p0 = state.load_force
+            q += tr.foh0_q * p0 + tr.foh1_q * p1
+            v += tr.foh0_v * p0 + tr.foh1_v * p1
+        elif load_prints:
+            q += tr.zoh_q * p1
+            v += tr.zoh_v * p1
+        readings, contact = self._contact(
+            q, v, checked_probes, probe_prints, load_prints, load_forces
+        )
+        done = self._work(p1, contact, q, q0) if work and self.hold == "zoh" else None
+        applied: list[tuple[Any, float]] = [*zip(load_prints, load_forces, strict=True)]
+        for fp, reading in zip(probe_prints, readings, strict=True):
+            if fp is not None and reading.force > 0.0:
+                applied.append((fp, -reading.force))
+        _require_finite(q, v, readings)
+        q.flags.writeable = v.flags.writeable = p1.flags.writeable = False
+        index = state.step + 1
+        new = ModalState(index, index * self._dt, q, v, p1, tuple(applied), self._owner)
+        return StepResult(new, self.frame(new) if frame else None, readings, done)
+
+    def frame(self, state: ModalState) -> FloatArray:
+        """Displacements on the lattice (x-major, flattened): stepped modes plus correction."""
+        self._check(state)
+        return self.basis.frame(state.q, state.applied)
+
+    def energy(self, state: ModalState) -> float:
+        """Kinetic plus strain energy of the stepped modes: scale / 2 sum (v^2 + w^2 q^2)."""
+        self._check(state)
+        kinetic = self._scale * 0.5 * float(np.vdot(state.v, state.v))
+        return kinetic + float(np.vdot(self._energy_weights, state.q * state.q))
+
+    def describe(self) -> dict[str, object]:
+        """The engine's settings and sizes, as plain data (the basis's own beside the core's)."""
+        return {
+            "engine": "modal",
+            "inputs": sorted(self.inputs),
+            **self.subject(),
+            "lattice": list(self._lattice),
+            "dt": self._dt,
+            "damping": self.damping,
+            "hold": self.hold,
+            "modes_stepped": self.modes.count,
+            "mode_box": list(self.modes.box),
+            **self.basis.describe(),
+            "memory_bytes": self.memory_bytes,
+            **self.bounds(),
+            "engine_bytes": self.engine_bytes,
+            "state_bytes": self.state_bytes,
+        }
+
+    def subject(self) -> dict[str, object]:
+        """What the engine models, for ``describe`` (an engine over a named problem says so)."""
+        return {}
+
+    def bounds(self) -> dict[str, object]:
+        """The step budget and the inputs' bounds, as ``describe`` states them."""
+        return {
+            "max_step_work": self.budget.max_work,
+            "max_held_bytes": self.budget.max_held_bytes,
+            "max_force": MAX_FORCE,
+            "max_depth": MAX_DEPTH,
+            "max_radius": MAX_RADIUS,
+            "max_shape_value": MAX_SHAPE_VALUE,
+        }
+
+    # -- the parts of a step ----------------------------------------------------------------
+
+    def _work(
+        self,
+        load_force: FloatArray,
+        contact: Sequence[tuple[FloatArray, float]],
+        q: FloatArray,
+        q0: FloatArray,
+    ) -> float:
+        """Work on the stepped modes over a held step: scale sum p (q1 - q0), p all forces'."""
+        total = load_force.copy()
+        for s, force in contact:
+            total -= force * s
+        return self._scale * float(np.vdot(total, q - q0))
+
+    def _modal_force(self, prints: Sequence[FootprintT], forces: Sequence[float]) -> FloatArray:
+        if not prints:
+            return self._zeros
+        modal_force = self.basis.modal_force
+        total = forces[0] * modal_force(prints[0])
+        for footprint, force in zip(prints[1:], forces[1:], strict=True):
+            total += force * modal_force(footprint)
+        return np.asarray(total)
+
+    def _contact(
+        self,
+        q: FloatArray,
+        v: FloatArray,
+        probes: Sequence[Probe],
+        prints: Sequence[FootprintT | None],
+        load_prints: Sequence[FootprintT],
+        load_forces: Sequence[float],
+    ) -> tuple[tuple[ProbeReading, ...], list[tuple[FloatArray, float]]]:
+        """Solve contact, apply it to q and v in place; the readings and (s, F) per contact."""
+        footprints = [fp for fp in prints if fp is not None]
+        if not footprints:
+            return tuple(_outside() for _ in probes), []
+        basis, tr, scale = self.basis, self.transition, self._scale
+        from_loads = basis.loads_residual(load_prints, load_forces)
+        if len(probes) == 1:
+            return self._one_probe(q, v, probes[0], footprints[0], from_loads)
+        shapes = [basis.modal_force(fp) for fp in footprints]
+        gains = [tr.zoh_q * s for s in shapes]  # the end-of-step response to a unit force
+        count = len(footprints)
+        free = np.empty(count)
+        compliance = np.empty((count, count))
+        for j, (s, fp) in enumerate(zip(shapes, footprints, strict=True)):
+            free[j] = scale * float(np.vdot(s, q)) + from_loads(fp)
+            for k in range(j + 1):
+                value = scale * float(np.vdot(gains[j], shapes[k])) + basis.cross(fp, footprints[k])
+                compliance[j, k] = compliance[k, j] = value
+        depths = np.array([pr.depth for pr, fp in zip(probes, prints, strict=True) if fp])
+        forces = solve_contact(compliance, free + depths)
+        contact = []
+        for s, gain, force in zip(shapes, gains, forces, strict=True):
+            if force > 0.0:
+                q -= force * gain
+                v -= (force * tr.zoh_v) * s
+                contact.append((s, float(force)))
+        displacement = free - compliance @ forces
+        found = iter(
+            _reading(float(f), float(z), float(d), float(compliance[j, j]))
+            for j, (f, z, d) in enumerate(zip(forces, displacement, depths, strict=True))
+        )
+        readings = tuple(next(found) if fp else _outside() for fp in prints)
+        return readings, contact
+
+    def _one_probe(
+        self,
+        q: FloatArray,
+        v: FloatArray,
+        probe: Probe,
+        footprint: FootprintT,
+        from_loads: Callable[[FootprintT], float],
+    ) -> tuple[tuple[ProbeReading, ...], list[tuple[FloatArray, float]]]:
+        """``_contact`` for the haptic loop's one probe, in scalars: F = max(0, b / c)."""
+        tr = self.transition
+        s = self.basis.modal_force(footprint)
+        gain = tr.zoh_q * s
+        free = self._scale * float(np.vdot(s, q)) + from_loads(footprint)
+        compliance = self._scale * float(np.vdot(gain, s)) + self.basis.own(footprint)
+        force = single_contact(compliance, free + probe.depth)
+        if force == 0.0:
+            return (_reading(0.0, free, probe.depth, compliance),), []
+        q -= force * gain
+        v -= (force * tr.zoh_v) * s
+        return (_reading(force, free - compliance * force, probe.depth, compliance),), [(s, force)]
+
+    def _project(self, shape: ArrayLike | None, what: str) -> tuple[FloatArray, float]:
+        if shape is None:
+            return self._zeros, 0.0
+        box, residual = self.basis.project(shape, what)
+        box.setflags(write=False)
+        return box, residual
+
+    def _check(self, state: ModalState) -> None:
+        if not isinstance(state, ModalState) or state.owner is not self._owner:
+            raise InvalidState("this state was not made by this engine (use its start())")
+
+
+def positive(value: float, what: str) -> float:
+    """``value`` as a finite float > 0, or ``InvalidEngineSettings``."""
+    number = float(value)
+    if not (math.isfinite(number) and number > 0.0):
+        raise InvalidEngineSettings(f"{what} must be a finite number > 0, got {number:.6g}")
+    return number
+
+
+def damping_ratio(value: float) -> float:
+    """``value`` as a finite damping ratio >= 0, or ``InvalidEngineSettings``."""
+    number = float(value)
+    if not (math.isfinite(number) and number >= 0.0):
+        raise InvalidEngineSettings(f"damping must be a finite ratio >= 0, got {number:.6g}")
+    return number
+
+
+def _require_finite(q: FloatArray, v: FloatArray, readings: Sequence[ProbeReading]) -> None:
+    """Refuse a step whose response overflowed (inputs within their bounds never do; this is
+    the guarantee that no state holds inf or NaN)."""
+    if not (np.isfinite(q).all() and np.isfinite(v).all()):
+        raise InvalidLoad("this step's response is not finite: its forces or depths are too large")
+    if not all(math.isfinite(r.force) for r in readings):
+        raise InvalidProbe("this step's contact forces are not finite: its depths are too large")
+
+
+def _reading(force: float, displacement: float, depth: float, compliance: float) -> ProbeReading:
+    gap = 0.0 if force > 0.0 else -(displacement + depth)
+    return ProbeReading(force, displacement, gap, compliance, force > 0.0)
+
+
+def _outside() -> ProbeReading:
+    return ProbeReading(0.0, _NAN, _NAN, _NAN, False, True)
+
+
+def _masked(tr: Transition, kept: NDArray[np.bool_]) -> Transition:
+    """The transition with every coefficient 0 off the kept modes (they stay at rest)."""
+    arrays = {}
+    for name in tr.__dataclass_fields__:
+        array = np.where(kept, getattr(tr, name), 0.0)
+        array.setflags(write=False)
+        arrays[name] = array
+    return Transition(**arrays)

@@ -1,0 +1,203 @@
+"""A modal basis given as tables: mode shapes on the lattice, footprints and the static
+correction from providers. How modes computed elsewhere (FEM) reach the stepping core.
+
+The modes are mass-normalised (int rho phi_j phi_k = delta_jk), so ``scale`` is 1: a
+footprint's modal force per unit force is s_k = <g, phi_k> (the footprint g normalised to a unit
+total force) and the footprint-weighted displacement is s . q. Mode values on the lattice are a
+table ``shapes`` (points x modes); what depends on where a load or probe acts comes from two
+providers, so that a basis can tabulate them however it likes (an FEM basis interpolates
+tables precomputed at build time, since a point probe of the mesh costs milliseconds):
+
+- ``FootprintModel.modal_force(at, radius)``: s for a footprint centred at ``at``;
+- ``StaticCorrection`` (optional): the compliance of the modes not stepped between two
+  footprints, and the field on the lattice of a unit force on one.
+
+The sine modes fed through this class (shapes 2^(d/2) prod sin(m pi x), footprints from the
+sine spectra) step exactly as ``engine.ModalEngine`` does (tests/models/live/test_basis.py).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol, TypeVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from membrane_models.live.cost import StepBudget, table_step_cost
+from membrane_models.live.errors import InvalidEngineSettings
+from membrane_models.live.interface import Load, Probe
+from membrane_models.live.modes import ModeSet
+from membrane_models.live.projection import checked_shape
+
+__all__ = ["FootprintModel", "StaticCorrection", "TableFootprint", "TabulatedBasis"]
+
+FloatArray = NDArray[np.float64]
+_Array = TypeVar("_Array", bound=NDArray[Any])
+
+
+@dataclass(frozen=True)
+class TableFootprint:
+    """Where a load or probe acts and its modal force per unit force (read-only)."""
+
+    at: tuple[float, ...]
+    radius: float
+    modal_force: FloatArray
+
+
+class FootprintModel(Protocol):
+    """Modal forces of footprints, wherever they are centred in the domain."""
+
+    def contains(self, at: tuple[float, ...]) -> bool:
+        """Whether ``at`` lies in the domain."""
+
+    def modal_force(self, at: tuple[float, ...], radius: float) -> FloatArray:
+        """s_k = <g, phi_k> for every mode, g the unit footprint of ``radius`` at ``at``."""
+
+
+class StaticCorrection(Protocol):
+    """The static compliance of the modes a basis does not step."""
+
+    def compliance(self, a: TableFootprint, b: TableFootprint) -> float:
+        """Displacement under ``b`` per unit force on ``a`` (symmetric)."""
+
+    def field(self, footprint: TableFootprint) -> FloatArray:
+        """The displacement on the lattice (flattened) of a unit force on ``footprint``."""
+
+
+class TabulatedBasis:
+    """Mass-normalised modes given as tables (``ModalBasis[TableFootprint]``).
+
+    Args:
+        lattice: points per axis of the frames.
+        shapes: mode values at the lattice points, (points, modes), points x-major.
+        omega: angular frequencies (modes,), > 0.
+        kept: the modes stepped (default: all); the others are left to ``correction``.
+        footprints: the footprints' modal forces.
+        correction: the static correction of the modes not stepped (None: none).
+
+    Raises:
+        InvalidEngineSettings: tables of inconsistent sizes or not finite.
+    """
+
+    def __init__(
+        self,
+        lattice: tuple[int, ...],
+        shapes: ArrayLike,
+        omega: ArrayLike,
+        footprints: FootprintModel,
+        *,
+        kept: ArrayLike | None = None,
+        correction: StaticCorrection | None = None,
+    ) -> None:
+        table = np.array(shapes, dtype=np.float64)
+        w = np.array(omega, dtype=np.float64).reshape(-1)
+        if table.ndim != 2 or table.shape != (math.prod(lattice), w.size):
+            raise InvalidEngineSettings(
+                f"the mode table must be (lattice points, modes) = ({math.prod(lattice)}, "
+                f"{w.size}), got {table.shape}"
+            )
+        if not (np.isfinite(table).all() and np.isfinite(w).all() and (w > 0).all()):
+            raise InvalidEngineSettings("the mode table and frequencies must be finite, w > 0")
+        mask = np.ones(w.size, dtype=bool) if kept is None else np.array(kept, dtype=bool)
+        if mask.shape != w.shape:
+            raise InvalidEngineSettings(f"kept must mark {w.size} modes, got {mask.size}")
+        self._lattice = tuple(lattice)
+        self._shapes = _frozen(table * mask)  # modes not stepped carry nothing here
+        w.setflags(write=False)
+        self._modes = ModeSet((w.size,), w, _frozen(mask))
+        self._footprints = footprints
+        self._correction = correction
+        self._inverse = _frozen(np.linalg.pinv(table[:, mask]))  # least squares, kept modes
+
+    @property
+    def spatial_dims(self) -> int:
+        return len(self._lattice)
+
+    @property
+    def lattice_shape(self) -> tuple[int, ...]:
+        return self._lattice
+
+    @property
+    def modes(self) -> ModeSet:
+        return self._modes
+
+    @property
+    def scale(self) -> float:
+        return 1.0
+
+    @property
+    def static_correction(self) -> bool:
+        return self._correction is not None
+
+    @property
+    def memory_bytes(self) -> int:
+        return int(self._shapes.nbytes + self._inverse.nbytes)
+
+    @property
+    def engine_bytes(self) -> int:
+        return self.memory_bytes
+
+    def contains(self, at: tuple[float, ...]) -> bool:
+        return self._footprints.contains(at)
+
+    def describe(self) -> dict[str, object]:
+        return {"basis": "tabulated", "static_correction": self.static_correction}
+
+    def footprints(
+        self, loads: Sequence[Load], probes: Sequence[Probe], budget: StepBudget
+    ) -> tuple[list[TableFootprint], list[TableFootprint | None]]:
+        inside = [pr for pr in probes if self.contains(pr.at)]
+        budget.check(
+            table_step_cost(len(loads), len(inside), self._modes.omega.size, self._shapes.shape[0])
+        )
+        load_prints = [self._footprint(ld) for ld in loads]
+        probe_prints = [self._footprint(pr) if self.contains(pr.at) else None for pr in probes]
+        return load_prints, probe_prints
+
+    def modal_force(self, footprint: TableFootprint) -> FloatArray:
+        return footprint.modal_force
+
+    def own(self, footprint: TableFootprint) -> float:
+        return self.cross(footprint, footprint)
+
+    def cross(self, a: TableFootprint, b: TableFootprint) -> float:
+        return 0.0 if self._correction is None else self._correction.compliance(a, b)
+
+    def loads_residual(
+        self, prints: Sequence[TableFootprint], forces: Sequence[float]
+    ) -> Callable[[TableFootprint], float]:
+        pairs = [(fp, f) for fp, f in zip(prints, forces, strict=True) if f != 0.0]
+        if not pairs or self._correction is None:
+            return lambda probe: 0.0
+        return lambda probe: sum(f * self.cross(fp, probe) for fp, f in pairs)
+
+    def frame(self, q: FloatArray, applied: Sequence[tuple[TableFootprint, float]]) -> FloatArray:
+        values = np.asarray(self._shapes @ q)
+        if self._correction is not None:
+            for footprint, force in applied:
+                if force != 0.0:
+                    values = values + force * self._correction.field(footprint)
+        return values
+
+    def project(self, shape: ArrayLike, what: str) -> tuple[FloatArray, float]:
+        values = checked_shape(shape, self._lattice, what)
+        q = np.zeros(self._modes.omega.size)
+        q[self._modes.kept] = self._inverse @ values
+        norm = float(np.linalg.norm(values))
+        if norm == 0.0:
+            return q, 0.0
+        return q, float(np.linalg.norm(values - self._shapes @ q)) / norm
+
+    def _footprint(self, item: Load | Probe) -> TableFootprint:
+        s = np.array(self._footprints.modal_force(item.at, item.radius), dtype=np.float64)
+        s *= self._modes.kept
+        s.setflags(write=False)
+        return TableFootprint(item.at, item.radius, s)
+
+
+def _frozen(array: _Array) -> _Array:
+    array.setflags(write=False)
+    return array
