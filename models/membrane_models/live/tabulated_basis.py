@@ -19,7 +19,7 @@ sine spectra) step exactly as ``engine.ModalEngine`` does (tests/models/live/tes
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from membrane_models.live.cost import StepBudget, table_step_cost
-from membrane_models.live.errors import InvalidEngineSettings
+from membrane_models.live.errors import InvalidEngineSettings, InvalidLoad, InvalidProbe
 from membrane_models.live.interface import Load, Probe
 from membrane_models.live.modes import ModeSet
 from membrane_models.live.projection import checked_shape
@@ -53,6 +53,9 @@ class FootprintModel(Protocol):
     def contains(self, at: tuple[float, ...]) -> bool:
         """Whether ``at`` lies in the domain."""
 
+    def refuses(self, radius: float) -> str | None:
+        """Why a footprint of ``radius`` cannot be carried (None: it can)."""
+
     def modal_force(self, at: tuple[float, ...], radius: float) -> FloatArray:
         """s_k = <g, phi_k> for every mode, g the unit footprint of ``radius`` at ``at``."""
 
@@ -77,6 +80,8 @@ class TabulatedBasis:
         kept: the modes stepped (default: all); the others are left to ``correction``.
         footprints: the footprints' modal forces.
         correction: the static correction of the modes not stepped (None: none).
+        description: what ``describe`` says of the basis besides the correction.
+        held_bytes: bytes the providers' tables hold (counted in ``memory_bytes``).
 
     Raises:
         InvalidEngineSettings: tables of inconsistent sizes or not finite.
@@ -91,6 +96,8 @@ class TabulatedBasis:
         *,
         kept: ArrayLike | None = None,
         correction: StaticCorrection | None = None,
+        description: Mapping[str, object] | None = None,
+        held_bytes: int = 0,
     ) -> None:
         table = np.array(shapes, dtype=np.float64)
         w = np.array(omega, dtype=np.float64).reshape(-1)
@@ -111,6 +118,8 @@ class TabulatedBasis:
         self._footprints = footprints
         self._correction = correction
         self._inverse = _frozen(np.linalg.pinv(table[:, mask]))  # least squares, kept modes
+        self._description = dict(description or {"basis": "tabulated"})
+        self._held_bytes = int(held_bytes)
 
     @property
     def spatial_dims(self) -> int:
@@ -134,7 +143,7 @@ class TabulatedBasis:
 
     @property
     def memory_bytes(self) -> int:
-        return int(self._shapes.nbytes + self._inverse.nbytes)
+        return int(self._shapes.nbytes + self._inverse.nbytes) + self._held_bytes
 
     @property
     def engine_bytes(self) -> int:
@@ -144,7 +153,7 @@ class TabulatedBasis:
         return self._footprints.contains(at)
 
     def describe(self) -> dict[str, object]:
-        return {"basis": "tabulated", "static_correction": self.static_correction}
+        return {**self._description, "static_correction": self.static_correction}
 
     def footprints(
         self, loads: Sequence[Load], probes: Sequence[Probe], budget: StepBudget
@@ -153,8 +162,11 @@ class TabulatedBasis:
         budget.check(
             table_step_cost(len(loads), len(inside), self._modes.omega.size, self._shapes.shape[0])
         )
-        load_prints = [self._footprint(ld) for ld in loads]
-        probe_prints = [self._footprint(pr) if self.contains(pr.at) else None for pr in probes]
+        load_prints = [self._footprint(ld, "load", i) for i, ld in enumerate(loads)]
+        probe_prints = [
+            self._footprint(pr, "probe", i) if self.contains(pr.at) else None
+            for i, pr in enumerate(probes)
+        ]
         return load_prints, probe_prints
 
     def modal_force(self, footprint: TableFootprint) -> FloatArray:
@@ -191,7 +203,11 @@ class TabulatedBasis:
             return q, 0.0
         return q, float(np.linalg.norm(values - self._shapes @ q)) / norm
 
-    def _footprint(self, item: Load | Probe) -> TableFootprint:
+    def _footprint(self, item: Load | Probe, kind: str, index: int) -> TableFootprint:
+        reason = self._footprints.refuses(item.radius)
+        if reason is not None:
+            error = InvalidLoad if kind == "load" else InvalidProbe
+            raise error(f"{kind} {index}: {reason}")
         s = np.array(self._footprints.modal_force(item.at, item.radius), dtype=np.float64)
         s *= self._modes.kept
         s.setflags(write=False)

@@ -36,6 +36,9 @@ class SineTables:
     def contains(self, at: tuple[float, ...]) -> bool:
         return inside_domain(at)
 
+    def refuses(self, radius: float) -> str | None:
+        return None
+
     def modal_force(self, at: tuple[float, ...], radius: float) -> np.ndarray:
         footprint = self._sine_footprint(at, radius)
         return (2.0 ** (-self.sine.spatial_dims / 2)) * self.sine.modal_force(footprint).ravel()

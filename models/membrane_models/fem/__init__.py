@@ -1,0 +1,90 @@
+"""The fem room: membranes and Kirchhoff plates on triangle meshes, in SI units.
+
+Physics as small weak forms assembled with scikit-fem, one job per module:
+
+- ``geometry``: ``Domain`` (a ``MeshTri``, named boundary parts, exact curves) and its
+  builders ``rectangle``, ``disk``, ``ellipse``, ``polygon``; ``mesh_file.read_mesh``;
+  ``gmsh_mesher`` (the ``mesh`` extra) meshes the ellipse and the polygon;
+- ``models``: ``Membrane`` and ``Plate``; ``damping``: ``Damping``;
+- ``forms``: the weak forms; ``boundary``: clamped / simply supported / free per part, the
+  constrained space, the rigid-body check; ``assembly``: ``assemble`` -> ``System``;
+- ``static``: point, pressure and patch loads, ``solve``; ``modal``: ``modes``;
+  ``sampling``: ``sample`` a field at points; ``stress``: von Mises at a point.
+
+Bad input raises a ``FemError`` (a ``membrane_errors.UserError``). Nothing here imports torch.
+"""
+
+from membrane_models.fem.assembly import System, assemble
+from membrane_models.fem.boundary import CONDITIONS, Condition
+from membrane_models.fem.damping import Damping
+from membrane_models.fem.errors import (
+    FemError,
+    InvalidGeometry,
+    InvalidLoad,
+    InvalidModel,
+    InvalidSolve,
+    InvalidSupports,
+    MissingMesher,
+    OutsideDomain,
+    RigidBodyModes,
+)
+from membrane_models.fem.geometry import (
+    Circle,
+    Curve,
+    Domain,
+    Ellipse,
+    Frame,
+    disk,
+    ellipse,
+    from_triangles,
+    polygon,
+    rectangle,
+)
+from membrane_models.fem.mesh_file import read_mesh
+from membrane_models.fem.modal import Modes, modes
+from membrane_models.fem.models import Membrane, Model, Plate
+from membrane_models.fem.sampling import derivatives, sample, sampler
+from membrane_models.fem.static import patch_load, point_load, pressure_load, solve
+from membrane_models.fem.stress import SurfaceStress, surface_stress
+
+__all__ = [
+    "CONDITIONS",
+    "Circle",
+    "Condition",
+    "Curve",
+    "Damping",
+    "Domain",
+    "Ellipse",
+    "FemError",
+    "Frame",
+    "InvalidGeometry",
+    "InvalidLoad",
+    "InvalidModel",
+    "InvalidSolve",
+    "InvalidSupports",
+    "Membrane",
+    "MissingMesher",
+    "Model",
+    "Modes",
+    "OutsideDomain",
+    "Plate",
+    "RigidBodyModes",
+    "SurfaceStress",
+    "System",
+    "assemble",
+    "derivatives",
+    "disk",
+    "ellipse",
+    "from_triangles",
+    "modes",
+    "patch_load",
+    "point_load",
+    "polygon",
+    "pressure_load",
+    "read_mesh",
+    "rectangle",
+    "sample",
+    "sampler",
+    "solve",
+    "surface_stress",
+]

@@ -1,0 +1,128 @@
+"""Shapes scikit-fem cannot mesh alone, meshed by gmsh: an ellipse, a polygon with holes.
+
+gmsh is optional (the ``mesh`` extra): it is imported here, on first use, and its absence is a
+``MissingMesher`` naming the extra. It runs headless (no GUI, no terminal output, no config
+files read) and leaves the process's SIGINT handler alone (``interruptible=False``). gmsh is
+one global state per process, so a call here is not thread-safe; a session the caller opened
+is kept open, one opened here is closed.
+
+Each function returns plain arrays: points ``(n, 2)`` (m), triangles ``(k, 3)`` and, per
+named physical curve group, its boundary lines ``(j, 2)`` (point indices); ``geometry`` turns
+them into a ``Domain``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from membrane_models.fem.errors import InvalidGeometry, MissingMesher
+
+__all__ = ["EXTRA_HINT", "mesh_ellipse", "mesh_polygon"]
+
+EXTRA_HINT = "pip install 'membrane-tissue[mesh]'"
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+Meshed = tuple[FloatArray, IntArray, dict[str, IntArray]]
+_TRIANGLE, _LINE = 2, 1  # gmsh element types: 3-node triangle, 2-node line
+
+
+def mesh_ellipse(center: tuple[float, float], a: float, b: float, size: float) -> Meshed:
+    """An ellipse, semi-axes ``a`` along x and ``b`` along y; one curve group, "rim"."""
+
+    def build(gmsh: Any) -> dict[str, list[int]]:
+        if a >= b:
+            gmsh.model.occ.addDisk(center[0], center[1], 0.0, a, b)
+        else:  # OpenCASCADE wants the major axis first: lay it along y
+            gmsh.model.occ.addDisk(
+                center[0], center[1], 0.0, b, a, zAxis=[0, 0, 1], xAxis=[0, 1, 0]
+            )
+        gmsh.model.occ.synchronize()
+        return {"rim": [tag for _, tag in gmsh.model.getEntities(1)]}
+
+    return _mesh(build, size)
+
+
+def mesh_polygon(outer: FloatArray, holes: Sequence[FloatArray], size: float) -> Meshed:
+    """A polygon ``(n, 2)`` with polygonal holes; curve groups "outer", "hole0", ..."""
+
+    def build(gmsh: Any) -> dict[str, list[int]]:
+        geo = gmsh.model.geo
+        groups: dict[str, list[int]] = {}
+        loops = []
+        for name, vertices in [("outer", outer), *((f"hole{i}", h) for i, h in enumerate(holes))]:
+            points = [geo.addPoint(float(x), float(y), 0.0, size) for x, y in vertices]
+            lines = [
+                geo.addLine(points[i], points[(i + 1) % len(points)]) for i in range(len(points))
+            ]
+            loops.append(geo.addCurveLoop(lines))
+            groups[name] = lines
+        geo.addPlaneSurface(loops)
+        geo.synchronize()
+        return groups
+
+    return _mesh(build, size)
+
+
+def _mesh(build: Callable[[Any], dict[str, list[int]]], size: float) -> Meshed:
+    """Build the model, mesh it with triangles of edge about ``size`` and read it back."""
+    with _session() as gmsh:
+        gmsh.model.add("membrane")
+        try:
+            return _read(gmsh, build(gmsh), size)
+        finally:
+            gmsh.model.remove()
+
+
+def _read(gmsh: Any, groups: dict[str, list[int]], size: float) -> Meshed:
+    gmsh.option.setNumber("Mesh.MeshSizeMax", size)
+    gmsh.option.setNumber("Mesh.MeshSizeMin", 0.0)
+    gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+    gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
+    gmsh.option.setNumber("Mesh.ElementOrder", 1)
+    try:
+        gmsh.model.mesh.generate(2)
+    except Exception as error:  # gmsh raises a bare Exception with its last error
+        raise InvalidGeometry(f"gmsh could not mesh the shape: {error}") from error
+    tags, coords, _ = gmsh.model.mesh.getNodes()
+    index = np.full(int(tags.max()) + 1, -1, dtype=np.int64)
+    index[tags.astype(np.int64)] = np.arange(tags.size)
+    points = np.asarray(coords, dtype=np.float64).reshape(-1, 3)[:, :2]
+    triangles = _nodes(gmsh, 2, -1, _TRIANGLE, 3)
+    if triangles.size == 0:
+        raise InvalidGeometry("gmsh made no triangles for the shape")
+    lines = {
+        name: index[np.concatenate([_nodes(gmsh, 1, tag, _LINE, 2) for tag in curves])]
+        for name, curves in groups.items()
+    }
+    return points, index[triangles], lines
+
+
+def _nodes(gmsh: Any, dim: int, tag: int, kind: int, count: int) -> IntArray:
+    """The node tags ``(k, count)`` of the elements of one type on an entity (-1: all)."""
+    types, _, nodes = gmsh.model.mesh.getElements(dim, tag)
+    found = [np.asarray(n, dtype=np.int64) for t, n in zip(types, nodes, strict=True) if t == kind]
+    return np.concatenate(found).reshape(-1, count) if found else np.zeros((0, count), np.int64)
+
+
+@contextmanager
+def _session() -> Iterator[Any]:
+    """gmsh, initialised headless; finalised after unless the caller had it open."""
+    try:
+        import gmsh
+    except (ImportError, OSError) as error:
+        raise MissingMesher(f"this shape is meshed by gmsh ({error}): {EXTRA_HINT}") from error
+    opened = not gmsh.isInitialized()
+    if opened:
+        gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("General.Verbosity", 1)
+        yield gmsh
+    finally:
+        if opened:
+            gmsh.finalize()

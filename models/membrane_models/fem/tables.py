@@ -1,0 +1,330 @@
+"""What a live step needs of a FEM model, tabulated once: modes on the lattice, footprints'
+modal forces and the static correction, per footprint radius, on a grid of centres.
+
+A live step cannot afford the mesh (a point probe of scikit-fem costs milliseconds, a sparse
+solve 0.2-4 ms), so everything that depends on where a load or probe acts is computed here
+on a grid of centres (``interpolation.CentreGrid``, spacing about half the radius) and read
+by cubic B-splines at step time:
+
+- the footprint of radius r at centre c is the Gaussian pressure
+  g(x) = exp(-|x - c|^2 / r^2) / (pi r^2) (N/m^2 per N; the part beyond the domain presses on
+  its support); its load vector f_c = int g v over the mesh, by the element's quadrature;
+- its modal forces s_k(c) = phi_k . f_c (N per N; the modes mass-normalised, so the
+  footprint-weighted displacement of the stepped modes is s . q, in m);
+- the static correction of the modes not stepped: the residual response
+  u_res(c) = K^-1 f_c - sum_k phi_k s_k(c) / w_k^2 (one sparse factorisation, a solve per
+  centre), its compliance between two footprints r(a, b) = f_b . u_res(a) (m/N) and its field
+  on the lattice (m/N).
+
+The lattice is the uniform grid over the domain's bounding box; points outside the domain
+carry 0. Units: SI (m, N, s).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+import numpy as np
+import scipy.linalg
+import scipy.linalg.lapack
+import scipy.sparse as sp
+from numpy.typing import NDArray
+from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+from membrane_models.fem.assembly import System
+from membrane_models.fem.errors import InvalidSolve
+from membrane_models.fem.interpolation import CentreGrid, prefilter
+from membrane_models.fem.modal import Modes
+from membrane_models.fem.sampling import sampler
+
+__all__ = [
+    "FootprintTables",
+    "LiveTables",
+    "footprint_loads",
+    "lattice_points",
+    "live_tables",
+]
+
+FloatArray = NDArray[np.float64]
+_Array = TypeVar("_Array", bound=NDArray[Any])
+# Grid nodes per footprint radius: the modal forces' and fields' grid, and the coarser grid of
+# the static correction's compliance (a table over pairs of centres, so its size goes as the
+# fourth power). Measured on a 40-mode clamped plate, r = 4 mm, 30 centres: the modal forces
+# within 1.3e-4 of their norm, the stepped compliance within 4e-5 and the correction's within
+# 2.4e-4 of the whole compliance (benchmarks/fem_figures.py has the skin patch's).
+_CENTRES_PER_RADIUS = 3.0
+_CROSS_CENTRES_PER_RADIUS = 1.5
+_CHUNK = 128  # centres per block when building load vectors
+
+
+@dataclass(frozen=True, eq=False)
+class FootprintTables:
+    """One footprint radius's tables, as spline coefficients on ``grid``.
+
+    Attributes:
+        radius: r (m).
+        grid: the centres.
+        modal_force: (nx, ny, modes): s(c).
+        field: (nx, ny, lattice points): the residual field of a unit force, or None without
+            a static correction.
+        cross_grid: the coarser grid of the compliance tables (``LiveTables.cross``).
+    """
+
+    radius: float
+    grid: CentreGrid
+    modal_force: FloatArray
+    field: FloatArray | None
+    cross_grid: CentreGrid
+
+    @property
+    def nbytes(self) -> int:
+        arrays = [self.modal_force, self.field]
+        return sum(int(a.nbytes) for a in arrays if a is not None)
+
+
+@dataclass(frozen=True, eq=False)
+class LiveTables:
+    """A FEM model's tables for the live engine.
+
+    Attributes:
+        lattice: points per axis of the frames, over ``lower`` .. ``upper`` (m).
+        lower, upper: the domain's bounding box (m).
+        omega: the modes' angular frequencies (rad/s).
+        shapes: the modes on the lattice, (points, modes), 0 outside the domain (m per unit q).
+        inside: which lattice points lie in the domain.
+        boundary: the mesh's boundary segments, (segments, 2, 2) (m): what ``contains`` tests.
+        footprints: the tables of each radius.
+        cross: (i, j) -> r(a, b) for a of radius i, b of radius j (i <= j), spline
+            coefficients on their ``cross_grid``s (nx_i, ny_i, nx_j, ny_j); empty without a
+            static correction.
+    """
+
+    lattice: tuple[int, int]
+    lower: tuple[float, float]
+    upper: tuple[float, float]
+    omega: FloatArray
+    shapes: FloatArray
+    inside: NDArray[np.bool_]
+    boundary: FloatArray
+    footprints: tuple[FootprintTables, ...]
+    cross: dict[tuple[int, int], FloatArray]
+
+    @property
+    def nbytes(self) -> int:
+        tables = sum(fp.nbytes for fp in self.footprints)
+        tables += sum(int(c.nbytes) for c in self.cross.values())
+        return tables + int(self.shapes.nbytes + self.omega.nbytes + self.boundary.nbytes)
+
+
+def lattice_points(
+    lower: Sequence[float], upper: Sequence[float], lattice: Sequence[int]
+) -> FloatArray:
+    """The uniform lattice over the box, x-major: (points, 2) (m)."""
+    axes = [np.linspace(lo, hi, n) for lo, hi, n in zip(lower, upper, lattice, strict=True)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 2)
+
+
+def live_tables(
+    system: System,
+    modes: Modes,
+    lattice: tuple[int, int],
+    radii: Sequence[float],
+    *,
+    static_correction: bool = True,
+) -> LiveTables:
+    """The tables of ``system``'s ``modes`` on ``lattice``, for footprints of ``radii`` (m).
+
+    Raises:
+        InvalidSolve: a lattice of fewer than 3 points per axis, or a radius not > 0.
+    """
+    if len(lattice) != 2 or min(lattice) < 3:
+        raise InvalidSolve(f"the lattice needs 2 axes of >= 3 points, got {tuple(lattice)}")
+    points = system.domain.mesh.p
+    lower = (float(points[0].min()), float(points[1].min()))
+    upper = (float(points[0].max()), float(points[1].max()))
+    xy = lattice_points(lower, upper, lattice)
+    inside = _inside_mesh(system, xy)
+    shapes = np.zeros((xy.shape[0], modes.count))
+    if inside.any():
+        shapes[inside] = sampler(system, xy[inside]) @ modes.shapes
+    residual = _Residual(system, modes, xy, inside) if static_correction else None
+    built = [_footprint_tables(system, modes, float(r), lower, upper, residual) for r in radii]
+    cross = {}
+    for i, (_, half_i, weighted_i) in enumerate(built):
+        for j in range(i, len(built)):
+            _, half_j, weighted_j = built[j]
+            if half_i is not None and half_j is not None:
+                values = half_i.T @ half_j - weighted_i.T @ weighted_j
+                grid_i, grid_j = built[i][0].cross_grid, built[j][0].cross_grid
+                cross[(i, j)] = prefilter(
+                    values.reshape(*grid_i.shape, *grid_j.shape), (0, 1, 2, 3)
+                )
+    return LiveTables(
+        (int(lattice[0]), int(lattice[1])),
+        lower,
+        upper,
+        _frozen(modes.omega.copy()),
+        _frozen(shapes),
+        _frozen(inside),
+        _frozen(boundary_segments(system)),
+        tuple(tables for tables, _, _ in built),
+        cross,
+    )
+
+
+def footprint_loads(system: System, radius: float, centres: FloatArray) -> FloatArray:
+    """Load vectors f_c (N, centres) of unit Gaussian footprints of ``radius`` at ``centres``."""
+    basis = system.basis
+    x = basis.global_coordinates().value  # (2, elements, points)
+    qx, qy = x[0].reshape(-1), x[1].reshape(-1)
+    weights = _quadrature_matrix(system)
+    out = np.empty((system.dofs, centres.shape[0]))
+    scale = 1.0 / (math.pi * radius * radius)
+    for start in range(0, centres.shape[0], _CHUNK):
+        block = centres[start : start + _CHUNK]
+        squared = (qx[:, None] - block[None, :, 0]) ** 2 + (qy[:, None] - block[None, :, 1]) ** 2
+        out[:, start : start + _CHUNK] = weights @ (scale * np.exp(-squared / radius**2))
+    return out
+
+
+class _Residual:
+    """The static correction's solves, with K's banded Cholesky factor K = L L' (K reordered
+    by reverse Cuthill-McKee: LAPACK's banded factor and blocked triangular solves take about
+    a second for the skin patch's 2,401 centres, where SuperLU's column-at-a-time solves take
+    ten).
+
+    r(a, b) = f_a' K^-1 f_b - sum_k s_a,k s_b,k / w_k^2 = (L^-1 f_a) . (L^-1 f_b) - ..., one
+    triangular solve per centre and a Gram matrix; the lattice field R f_c = (R P')' f_c with
+    R P' solved once for the lattice's points (P samples the lattice).
+    """
+
+    def __init__(
+        self, system: System, modes: Modes, xy: FloatArray, inside: NDArray[np.bool_]
+    ) -> None:
+        self.system = system
+        self.modes = modes
+        self.factor = _BandedCholesky(system.reduced_stiffness)
+        lattice = sp.csr_matrix((xy.shape[0], system.dofs))
+        if inside.any():
+            rows = sp.coo_matrix(sampler(system, xy[inside]))
+            index = np.flatnonzero(inside)
+            lattice = sp.csr_matrix(
+                (rows.data, (index[rows.row], rows.col)), shape=(xy.shape[0], system.dofs)
+            )
+        # R P' over every DOF, (N, points): the lattice's field per unit load anywhere
+        solved = self.factor.solve(system.reduce(lattice.T.toarray()))
+        stepped = modes.shapes @ ((lattice @ modes.shapes).T / modes.omega[:, None] ** 2)
+        self.lattice_response = system.expand(solved) - stepped
+
+    def half(self, loads: FloatArray) -> FloatArray:
+        """L^-1 f for each load column: r(a, b) = half_a . half_b - (s_a / w) . (s_b / w)."""
+        return self.factor.half_solve(self.system.reduce(loads))
+
+    def field(self, loads: FloatArray) -> FloatArray:
+        """The residual field on the lattice of each load column (points, centres)."""
+        return np.asarray(self.lattice_response.T @ loads)
+
+
+class _BandedCholesky:
+    """K = L L' for a sparse symmetric positive definite K, reordered to a narrow band."""
+
+    def __init__(self, matrix: sp.spmatrix) -> None:
+        csr = sp.csr_matrix(matrix)
+        self.order = reverse_cuthill_mckee(csr, symmetric_mode=True)
+        permuted = sp.coo_matrix(csr[self.order][:, self.order])
+        lower = permuted.row >= permuted.col
+        offsets = (permuted.row - permuted.col)[lower]
+        band = np.zeros((int(offsets.max(initial=0)) + 1, csr.shape[0]))
+        band[offsets, permuted.col[lower]] = permuted.data[lower]
+        try:
+            self.band = scipy.linalg.cholesky_banded(band, lower=True)
+        except np.linalg.LinAlgError:
+            raise InvalidSolve(
+                "the stiffness is not positive definite: is the model held?"
+            ) from None
+
+    def half_solve(self, rhs: FloatArray) -> FloatArray:
+        """L^-1 rhs (rows in K's order)."""
+        solved, info = scipy.linalg.lapack.dtbtrs(self.band, rhs[self.order], uplo="L")
+        if info != 0:
+            raise InvalidSolve(f"the banded triangular solve failed (LAPACK info {info})")
+        return np.asarray(solved)
+
+    def solve(self, rhs: FloatArray) -> FloatArray:
+        """K^-1 rhs."""
+        solved = scipy.linalg.cho_solve_banded((self.band, True), rhs[self.order])
+        out = np.empty_like(solved)
+        out[self.order] = solved
+        return out
+
+
+def _footprint_tables(
+    system: System,
+    modes: Modes,
+    radius: float,
+    lower: tuple[float, float],
+    upper: tuple[float, float],
+    residual: _Residual | None,
+) -> tuple[FootprintTables, FloatArray | None, FloatArray]:
+    """One radius's tables, with its centres' half solves L^-1 f_c and s_c / w (the cross
+    tables' factors; None without a static correction)."""
+    if not (math.isfinite(radius) and radius > 0.0):
+        raise InvalidSolve(f"a footprint radius must be > 0 m, got {radius!r}")
+    grid = CentreGrid.covering(lower, upper, radius / _CENTRES_PER_RADIUS)
+    cross_grid = CentreGrid.covering(lower, upper, radius / _CROSS_CENTRES_PER_RADIUS)
+    loads = footprint_loads(system, radius, grid.nodes())
+    forces = modes.shapes.T @ loads  # (modes, centres)
+    nx, ny = grid.shape
+    modal_force = prefilter(forces.T.reshape(nx, ny, -1), (0, 1))
+    if residual is None:
+        return FootprintTables(radius, grid, modal_force, None, cross_grid), None, forces
+    field = prefilter(residual.field(loads).T.reshape(nx, ny, -1), (0, 1))
+    coarse = footprint_loads(system, radius, cross_grid.nodes())
+    weighted = (modes.shapes.T @ coarse) / modes.omega[:, None]
+    tables = FootprintTables(radius, grid, modal_force, field, cross_grid)
+    return tables, residual.half(coarse), weighted
+
+
+def _quadrature_matrix(system: System) -> sp.csr_matrix:
+    """B (N, quadrature points): B[i, q] = dx_q v_i(x_q), so that B g(x_q) = int g v_i."""
+    basis = system.basis
+    elements, per_element = basis.dx.shape
+    columns = np.arange(elements * per_element).reshape(elements, per_element)
+    rows, cols, values = [], [], []
+    for k in range(basis.Nbfun):
+        value = np.asarray(basis.basis[k][0].value) * basis.dx
+        rows.append(np.repeat(basis.element_dofs[k][:, None], per_element, axis=1).reshape(-1))
+        cols.append(columns.reshape(-1))
+        values.append(value.reshape(-1))
+    return sp.csr_matrix(
+        (np.concatenate(values), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(system.dofs, elements * per_element),
+    )
+
+
+def boundary_segments(system: System) -> FloatArray:
+    """The mesh's boundary edges as segments (segments, 2, 2) (m)."""
+    mesh = system.domain.mesh
+    facets = mesh.facets[:, mesh.boundary_facets()]
+    return np.ascontiguousarray(np.transpose(mesh.p[:, facets], (2, 1, 0)))
+
+
+def _inside_mesh(system: System, xy: FloatArray) -> NDArray[np.bool_]:
+    """Which points lie on the mesh (its element finder; points on an edge count)."""
+    finder = system.domain.mesh.element_finder()
+    inside = np.zeros(xy.shape[0], dtype=bool)
+    for index, (x, y) in enumerate(xy):
+        try:
+            finder(np.array([x]), np.array([y]))
+        except ValueError:
+            continue
+        inside[index] = True
+    return inside
+
+
+def _frozen(array: _Array) -> _Array:
+    array.setflags(write=False)
+    return array
