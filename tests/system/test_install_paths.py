@@ -187,6 +187,20 @@ def test_server_install_has_no_torch(server_venv: Path) -> None:
 
 
 @pytest.mark.slow
+def test_server_install_builds_physical_tissue_without_torch(server_venv: Path) -> None:
+    """scikit-fem and meshio come with the server extra; the fem room never needs torch."""
+    script = (
+        "import sys; from membrane_models import fem; "
+        "s = fem.assemble(fem.rectangle(0.05, 0.05, 0.01), fem.Plate(1.5e6, 0.45, 0.003, 1109.0), "
+        "'clamped'); print(f'{fem.modes(s, 1).frequency[0]:.1f}'); "
+        "assert 'torch' not in sys.modules, 'torch imported'"
+    )
+    result = run([str(server_venv / "python"), "-c", script])
+    assert result.returncode == 0, result.stderr
+    assert 70.0 < float(result.stdout) < 90.0  # Hz: the skin patch's first mode (81.7, fine)
+
+
+@pytest.mark.slow
 def test_server_install_serves_a_query(server_venv: Path, server_address: str) -> None:
     membrane = str(server_venv / "membrane")
     result = run([membrane, "query", "--connect", server_address, "--t", "0.5", "--json"])

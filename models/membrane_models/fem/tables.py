@@ -178,7 +178,7 @@ def live_tables(
 def footprint_loads(system: System, radius: float, centres: FloatArray) -> FloatArray:
     """Load vectors f_c (N, centres) of unit Gaussian footprints of ``radius`` at ``centres``."""
     basis = system.basis
-    x = basis.global_coordinates().value  # (2, elements, points)
+    x = np.asarray(basis.global_coordinates())  # (2, elements, points)
     qx, qy = x[0].reshape(-1), x[1].reshape(-1)
     weights = _quadrature_matrix(system)
     out = np.empty((system.dofs, centres.shape[0]))
@@ -295,7 +295,7 @@ def _quadrature_matrix(system: System) -> sp.csr_matrix:
     columns = np.arange(elements * per_element).reshape(elements, per_element)
     rows, cols, values = [], [], []
     for k in range(basis.Nbfun):
-        value = np.asarray(basis.basis[k][0].value) * basis.dx
+        value = np.asarray(basis.basis[k][0]) * basis.dx
         rows.append(np.repeat(basis.element_dofs[k][:, None], per_element, axis=1).reshape(-1))
         cols.append(columns.reshape(-1))
         values.append(value.reshape(-1))

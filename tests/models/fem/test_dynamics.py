@@ -74,6 +74,7 @@ def test_a_suddenly_applied_load_peaks_at_twice_the_static_deflection(
     assert history[per_half_period - 1] / static == pytest.approx(2.0, rel=5e-3)
 
 
+@pytest.mark.slow
 def test_with_the_static_correction_the_fast_modes_do_not_overshoot(
     simply_supported: Patch,
 ) -> None:
@@ -98,6 +99,7 @@ def test_a_slow_ramp_reaches_the_static_deflection(simply_supported: Patch) -> N
     assert history[-1] == pytest.approx(static, rel=5e-3)
 
 
+@pytest.mark.slow
 def test_the_clamped_square_overshoots_less_than_twice() -> None:
     """Its modes' frequencies are not odd multiples of the first: the first maximum stays
     below 2x (docs/FEM.md quotes it)."""

@@ -57,6 +57,7 @@ def test_disk_frequencies_match_the_bessel_zeros_at_order_four() -> None:
     assert observed_order(errors, sizes) > 3.3
 
 
+@pytest.mark.slow
 def test_a_polygon_with_a_hole_converges_to_a_refined_reference() -> None:
     pytest.importorskip("gmsh")
     outer = [(0.0, 0.0), (1.0, 0.0), (1.1, 0.9), (0.0, 0.8)]

@@ -60,6 +60,7 @@ def _disk_centre(condition: str, size: float, exact_frame: bool = True) -> float
     return float(fem.sample(system, u, (0.0, 0.0)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("condition", ["clamped", "simply_supported"])
 def test_disk_centre_point_load_converges_to_its_closed_form(condition: str) -> None:
     errors = [_disk_centre(condition, size) / DISK[condition] - 1 for size in DISK_SIZES]

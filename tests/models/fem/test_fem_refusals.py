@@ -155,6 +155,7 @@ def test_damping_gives_each_mode_its_ratio() -> None:
         rayleigh.ratios([0.0])
 
 
+@pytest.mark.slow
 def test_the_fem_room_imports_neither_torch_nor_the_learned_models() -> None:
     code = (
         "import sys, membrane_models.fem; "
