@@ -104,7 +104,8 @@ class ModalStepper(Generic[FootprintT]):
     Args:
         basis: the modes, their footprints, static correction and frames.
         dt: the step (the basis's time units), > 0.
-        damping: modal damping ratio zeta >= 0, one for every mode.
+        damping: modal damping ratio zeta >= 0: one for every mode, or one per mode (an array
+            of the mode box's shape, e.g. Rayleigh damping's alpha / 2w + beta w / 2).
         hold: "zoh" (loads constant over a step) or "foh" (linear from the last step's).
         budget: the most one step may cost (``cost.StepBudget``; default 5 ms of work and
             512 KiB of held spectra); a step over it is refused with its figure.
@@ -118,7 +119,7 @@ class ModalStepper(Generic[FootprintT]):
         basis: ModalBasis[FootprintT],
         dt: float,
         *,
-        damping: float = 0.0,
+        damping: float | ArrayLike = 0.0,
         hold: Hold = "zoh",
         budget: StepBudget | None = None,
     ) -> None:
@@ -126,7 +127,11 @@ class ModalStepper(Generic[FootprintT]):
         self._dims = basis.spatial_dims
         self._lattice = basis.lattice_shape
         self._dt = positive(dt, "dt")
-        self.damping = damping_ratio(damping)
+        self.damping: float | FloatArray = (
+            damping_ratio(damping)  # type: ignore[arg-type]
+            if np.ndim(damping) == 0
+            else damping_ratios(damping, basis.modes.box)
+        )
         if hold not in ("zoh", "foh"):
             raise InvalidEngineSettings(f"hold must be 'zoh' or 'foh', got {str(hold)[:20]!r}")
         self.hold: Hold = hold
@@ -268,7 +273,7 @@ class ModalStepper(Generic[FootprintT]):
             **self.subject(),
             "lattice": list(self._lattice),
             "dt": self._dt,
-            "damping": self.damping,
+            **self._described_damping(),
             "hold": self.hold,
             "modes_stepped": self.modes.count,
             "mode_box": list(self.modes.box),
@@ -277,6 +282,14 @@ class ModalStepper(Generic[FootprintT]):
             **self.bounds(),
             "engine_bytes": self.engine_bytes,
             "state_bytes": self.state_bytes,
+        }
+
+    def _described_damping(self) -> dict[str, object]:
+        if isinstance(self.damping, float):
+            return {"damping": self.damping}
+        return {
+            "damping": "per mode",
+            "damping_range": [float(self.damping.min()), float(self.damping.max())],
         }
 
     def subject(self) -> dict[str, object]:
@@ -408,6 +421,17 @@ def damping_ratio(value: float) -> float:
     if not (math.isfinite(number) and number >= 0.0):
         raise InvalidEngineSettings(f"damping must be a finite ratio >= 0, got {number:.6g}")
     return number
+
+
+def damping_ratios(values: ArrayLike, box: tuple[int, ...]) -> FloatArray:
+    """Per-mode ratios as a read-only array of the mode box's shape, each finite and >= 0."""
+    ratios = np.array(values, dtype=np.float64)
+    if ratios.shape != box:
+        raise InvalidEngineSettings(f"damping needs one ratio per mode {box}, got {ratios.shape}")
+    if not (np.isfinite(ratios).all() and (ratios >= 0.0).all()):
+        raise InvalidEngineSettings("damping ratios must be finite and >= 0")
+    ratios.setflags(write=False)
+    return ratios
 
 
 def _require_finite(q: FloatArray, v: FloatArray, readings: Sequence[ProbeReading]) -> None:

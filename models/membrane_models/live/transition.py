@@ -54,14 +54,17 @@ class Transition:
     foh1_v: FloatArray
 
 
-def transition(omega: FloatArray, zeta: float, dt: float) -> Transition:
-    """The step's coefficients for angular frequencies ``omega`` (> 0, any shape)."""
+def transition(omega: FloatArray, zeta: float | FloatArray, dt: float) -> Transition:
+    """The step's coefficients for angular frequencies ``omega`` (> 0, any shape) and damping
+    ratios ``zeta`` (one for every mode, or one per mode: Rayleigh damping's)."""
     w = np.asarray(omega, dtype=np.float64)
     x = w * dt
-    if zeta == 0.0:
-        f11, f12, f21, f22, gq, gv, eq, ev = _undamped(x)
+    if np.ndim(zeta) == 0:
+        ratio = float(zeta)
+        parts = _undamped(x) if ratio == 0.0 else _damped(x, ratio)
     else:
-        f11, f12, f21, f22, gq, gv, eq, ev = _damped(x, zeta)
+        parts = _per_mode(x, np.broadcast_to(np.asarray(zeta, dtype=np.float64), x.shape))
+    f11, f12, f21, f22, gq, gv, eq, ev = parts
     zoh_q, zoh_v = gq / w**2, gv / w
     ramp_q, ramp_v = eq / (w**2 * x), ev / (w * x)  # E / dt
     return Transition(
@@ -97,14 +100,32 @@ def _x_minus_sin(x: FloatArray) -> FloatArray:
     return out
 
 
-def _damped(x: FloatArray, zeta: float) -> tuple[FloatArray, ...]:
+def _per_mode(x: FloatArray, zeta: FloatArray) -> tuple[FloatArray, ...]:
+    """Each mode with its own ratio: the closed forms where it is 0, the exponential elsewhere."""
+    parts = [np.array(p, dtype=np.float64) for p in _undamped(x)]
+    damped = zeta > 0.0
+    if damped.any():
+        for part, values in zip(parts, _damped(x[damped], zeta[damped]), strict=True):
+            part[damped] = values
+    return tuple(parts)
+
+
+def _damped(x: FloatArray, zeta: float | FloatArray) -> tuple[FloatArray, ...]:
     """Van Loan's block exponential of the dimensionless system, batched over the modes."""
-    generator = np.zeros((4, 4))
-    generator[0, 1] = 1.0
-    generator[1, 0], generator[1, 1], generator[1, 2] = -1.0, -2.0 * zeta, 1.0
-    generator[2, 3] = 1.0
     flat = x.reshape(-1)
-    blocks = scipy.linalg.expm(flat[:, None, None] * generator[None, :, :])
+    if np.ndim(zeta) == 0:
+        generator = np.zeros((4, 4))
+        generator[0, 1] = 1.0
+        generator[1, 0], generator[1, 1], generator[1, 2] = -1.0, -2.0 * float(zeta), 1.0
+        generator[2, 3] = 1.0
+        blocks = scipy.linalg.expm(flat[:, None, None] * generator[None, :, :])
+    else:
+        generators = np.zeros((flat.size, 4, 4))
+        generators[:, 0, 1] = 1.0
+        generators[:, 1, 0], generators[:, 1, 2] = -1.0, 1.0
+        generators[:, 1, 1] = -2.0 * np.asarray(zeta).reshape(-1)
+        generators[:, 2, 3] = 1.0
+        blocks = scipy.linalg.expm(flat[:, None, None] * generators)
     parts = (
         blocks[:, 0, 0], blocks[:, 0, 1], blocks[:, 1, 0], blocks[:, 1, 1],
         blocks[:, 0, 2], blocks[:, 1, 2], blocks[:, 0, 3], blocks[:, 1, 3],
