@@ -19,6 +19,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from membrane_models.live.cost import FootprintSize, StepBudget
 from membrane_models.live.errors import InvalidEngineSettings
@@ -44,7 +45,8 @@ class ModalEngine(ModalStepper[Footprint]):
         lattice: points per axis of the frames (an int: the same on every axis), >= 3 each,
             on the uniform grid linspace(0, 1, n) per axis.
         dt: the step (problem time units), > 0.
-        damping: modal damping ratio zeta >= 0 (0: the study's equation).
+        damping: modal damping ratio zeta >= 0 (0: the study's equation), or one per mode of
+            the mode box.
         hold: "zoh" (loads constant over a step) or "foh" (linear from the last step's).
         modes: modes per axis to step (default: those the lattice resolves, n - 2).
         step_limit: keep modes with w dt <= step_limit (default pi); None keeps all.
@@ -66,7 +68,7 @@ class ModalEngine(ModalStepper[Footprint]):
         lattice: int | Sequence[int],
         dt: float,
         *,
-        damping: float = 0.0,
+        damping: float | ArrayLike = 0.0,
         hold: Hold = "zoh",
         modes: int | Sequence[int] | None = None,
         step_limit: float | None = math.pi,
