@@ -144,6 +144,8 @@ class Request:
     loads: list[Any] | None = None
     probes: list[Any] | None = None
     frame: bool = True  # step: whether the reply carries the frame
+    # step: refuse a load or probe centred outside the domain (instead of "touches nothing")
+    strict: bool = False
     initial: dict[str, Any] | None = None  # open: {displacement, velocity} arrays
     token: str | None = None  # live ops: the Session object's own token (re-sends carry it)
 
@@ -158,6 +160,8 @@ class Request:
             message["dtype"] = self.dtype
         if not self.frame:
             message["frame"] = False
+        if self.strict:
+            message["strict"] = True
         return encode(message)
 
     @classmethod
@@ -252,6 +256,11 @@ class Request:
         if type(frame) is not bool:
             self._refuse(
                 ErrorCode.BAD_REQUEST, f"'frame' must be true or false, got {preview(frame)}"
+            )
+        self.strict = strict = message.get("strict", False)
+        if type(strict) is not bool:
+            self._refuse(
+                ErrorCode.BAD_REQUEST, f"'strict' must be true or false, got {preview(strict)}"
             )
 
     def _refuse(self, code: ErrorCode, message: str) -> NoReturn:

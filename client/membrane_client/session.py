@@ -97,11 +97,18 @@ class Session:
         self.info = self.client.describe(self.scene)
         return self
 
-    def step(self, loads: Any = (), probes: Any = (), *, frame: bool = True) -> LiveFrame:
-        """Take step ``k`` under ``loads`` and ``probes`` (Load/Probe or their maps)."""
+    def step(
+        self, loads: Any = (), probes: Any = (), *, frame: bool = True, strict: bool = False
+    ) -> LiveFrame:
+        """Take step ``k`` under ``loads`` and ``probes`` (Load/Probe or their maps).
+
+        ``strict``: a load or probe centred outside the scene's domain is refused (a
+        ``ServerError`` naming the domain's extent) instead of touching nothing."""
         wire_loads = [_wire(item) for item in loads]
         wire_probes = [_wire(item) for item in probes]
-        reply = self._request(Op.STEP, k=self.k, loads=wire_loads, probes=wire_probes, frame=frame)
+        reply = self._request(
+            Op.STEP, k=self.k, loads=wire_loads, probes=wire_probes, frame=frame, strict=strict
+        )
         result = LiveFrame.from_reply(reply, self.info)
         self.k = result.k
         return result

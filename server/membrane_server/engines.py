@@ -22,7 +22,8 @@ from membrane_models.problems import Problem
 __all__ = ["ENGINE_GROUP", "EngineFactory", "UnknownEngine", "build_engine", "engine_kinds"]
 
 ENGINE_GROUP = "membrane.engines"
-EngineFactory = Callable[[Problem, tuple[int, ...], float, Mapping[str, object]], LiveEngine[Any]]
+# (what the scene models: a dimensionless Problem, or a physical Tissue; lattice; dt; options)
+EngineFactory = Callable[[Any, tuple[int, ...], float, Mapping[str, object]], LiveEngine[Any]]
 
 
 class UnknownEngine(UserError):
@@ -40,7 +41,7 @@ def engine_kinds() -> dict[str, EngineFactory]:
 
 def build_engine(
     kind: str,
-    problem: Problem,
+    problem: Problem | object,
     lattice: tuple[int, ...],
     dt: float,
     options: Mapping[str, object],

@@ -42,6 +42,7 @@ from membrane_client.protocol import (
     preview,
 )
 from membrane_models.live import (
+    BoundedEngine,
     LiveEngine,
     LiveError,
     Load,
@@ -49,7 +50,6 @@ from membrane_models.live import (
     ProbeReading,
     Start,
 )
-from membrane_models.problems import Problem
 from membrane_server.engines import build_engine
 from membrane_server.sessions import LiveSession, Sent, SessionTable
 
@@ -70,22 +70,30 @@ _SESSION_OVERHEAD = 4096
 # A live reply beside its frame: the envelope and up to MAX_PROBES readings.
 _REPLY_OVERHEAD = 512 + MAX_PROBES * 160
 
-def build_scene_engine(scene: Scene, problem: Problem) -> LiveEngine[Any]:
-    """The live engine of a scene with a ``[live]`` table, by its kind, on its lattice and dt."""
+
+def build_scene_engine(scene: Scene, problem: object) -> LiveEngine[Any]:
+    """The live engine of a scene with a ``[live]`` table, by its kind, on its lattice and dt
+    (a physical scene's kind is ``fem`` unless its table names another)."""
     assert scene.live is not None
     settings = scene.live
-    return build_engine(settings.engine, problem, scene.lattice.shape, scene.dt, settings.options)
+    kind = settings.engine
+    if scene.tissue is not None and "engine" not in settings.model_fields_set:
+        kind = "fem"
+    return build_engine(kind, problem, scene.lattice.shape, scene.dt, settings.options)
 
 
-def live_description(engine: LiveEngine[Any]) -> dict[str, Any]:
+def live_description(
+    engine: LiveEngine[Any], units: dict[str, str] | None = None
+) -> dict[str, Any]:
     """``describe``'s ``live`` field: the engine's settings and bounds (its own ``describe``),
-    the per-step limits, the memory a session holds at most, and the units of a step."""
+    the per-step limits, the memory a session holds at most, and the units of a step
+    (``units``: a physical scene's SI ones; default the problem units')."""
     return {
         **engine.describe(),
         "max_loads": MAX_LOADS,
         "max_probes": MAX_PROBES,
         "session_bytes": session_bytes(engine),
-        "units": STEP_UNITS,
+        "units": STEP_UNITS if units is None else units,
     }
 
 
@@ -171,6 +179,8 @@ class LiveOps:
         engine = session.engine
         _require_inputs(engine, loads=request.loads, probes=request.probes)
         loads, probes = engine_inputs(request, engine.spatial_dims)
+        if request.strict:
+            _require_inside(engine, loads, probes)
         try:
             result = engine.step(session.state, loads, probes, frame=request.frame)
         except LiveError as exc:
@@ -236,6 +246,24 @@ def wire_error(exc: LiveError | LiveInputError, what: str = "") -> RequestError:
     or the live schema's (a wire item's form): ``bad_request`` with its message (both quote
     client values bounded; ``error_reply`` caps the length)."""
     return RequestError(ErrorCode.BAD_REQUEST, f"{what}{exc}")
+
+
+def _require_inside(
+    engine: LiveEngine[Any], loads: tuple[Load, ...], probes: tuple[Probe, ...]
+) -> None:
+    """A ``strict`` step: every load and probe centred in the domain, or a refusal naming it."""
+    if not isinstance(engine, BoundedEngine):
+        raise RequestError(ErrorCode.BAD_REQUEST, "this scene's engine cannot check 'strict'")
+    items = [("load", i, ld.at) for i, ld in enumerate(loads)]
+    items += [("probe", i, pr.at) for i, pr in enumerate(probes)]
+    for kind, index, at in items:
+        if not engine.contains(at):
+            where = ", ".join(f"{x:.6g}" for x in at)
+            raise RequestError(
+                ErrorCode.BAD_REQUEST,
+                f"{kind} {index}: at ({where}) lies outside the domain "
+                f"{engine.domain_text()} (strict)",
+            )
 
 
 def _require_inputs(engine: LiveEngine[Any], **given: object) -> None:

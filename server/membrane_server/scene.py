@@ -31,6 +31,7 @@ from pydantic import (
 from membrane_client.protocol import MAX_LATTICE_POINTS, MAX_LIVE_POINTS
 from membrane_errors import UserError
 from membrane_models.problems import PROBLEMS, make_problem
+from membrane_server.tissue_table import TissueTable
 
 __all__ = [
     "DEFAULT_TABLE_MAX_BYTES",
@@ -198,8 +199,11 @@ class Scene(_Strict):
 
     name: str = Field(pattern=_NAME_PATTERN)
     description: str = ""
-    model: str = Field(min_length=1)
-    evaluator: EvaluatorKind
+    # A film scene names a dimensionless problem or a trained model and how to answer it; a
+    # physical scene names its tissue instead ([tissue], SI units) and has no film.
+    model: str = ""
+    evaluator: EvaluatorKind | None = None
+    tissue: TissueTable | None = None
     # The problem's own parameters (wave speed c, force place x0/y0, amplitude h, ...), for an
     # exact scene: checked as `membrane exact --set` checks them.
     parameters: dict[str, float] | None = None
@@ -214,6 +218,40 @@ class Scene(_Strict):
     live: LiveSettings | None = None
     # Where the file was read from: relative model paths are resolved against its folder.
     source: Path | None = Field(default=None, exclude=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _tissue_has_no_film(cls, data: Any) -> Any:
+        # A physical scene's time grid is its step alone: `query` answers its rest shape.
+        if isinstance(data, dict) and "tissue" in data and "duration" not in data and "dt" in data:
+            return {**data, "duration": data["dt"]}
+        return data
+
+    @model_validator(mode="after")
+    def _model_or_tissue(self) -> Scene:
+        if self.tissue is None:
+            if not self.model or self.evaluator is None:
+                raise ValueError(
+                    "give model and evaluator (a film scene) or a [tissue] table (a physical "
+                    "live scene)"
+                )
+            return self
+        if self.model or self.evaluator is not None or self.parameters is not None:
+            raise ValueError(
+                "a [tissue] scene names no model, evaluator or parameters: the tissue is its model"
+            )
+        if self.live is None:
+            raise ValueError("a [tissue] scene is live: add a [live] table (its engine: fem)")
+        if self.lattice.ny is None or self.lattice.points is not None:
+            raise ValueError("lattice: a [tissue] scene needs nx and ny (a grid over the tissue)")
+        if self.duration != self.dt:
+            raise ValueError("duration: a [tissue] scene has no film; leave duration out")
+        return self
+
+    @property
+    def film(self) -> bool:
+        """Whether ``query`` answers a film (a physical scene answers its rest shape)."""
+        return self.tissue is None
 
     @field_validator("duration")
     @classmethod
@@ -241,7 +279,7 @@ class Scene(_Strict):
         if parameters is None:
             return None
         model, evaluator = info.data.get("model"), info.data.get("evaluator")
-        if model is None or evaluator is None:  # their own errors are reported
+        if not model or evaluator is None:  # their own errors are reported
             return parameters
         if evaluator != "exact" or model not in PROBLEMS:
             raise ValueError(

@@ -24,6 +24,7 @@ from membrane_server.reply_encoding import EncodedFields, encode_fields
 from membrane_server.scene import Scene, SceneError, load_scene
 from membrane_server.source import ModelSource, resolve_source
 from membrane_server.timeline import Sample, Timeline
+from membrane_server.tissue_scene import SI_STEP_UNITS, SI_UNITS, TissueSource, tissue_parts
 
 __all__ = ["UNITS", "ServedScene"]
 
@@ -44,7 +45,7 @@ class ServedScene:
         self,
         scene: Scene,
         evaluator: Evaluator,
-        source: ModelSource,
+        source: ModelSource | TissueSource,
         live: LiveEngine[Any] | None = None,
     ) -> None:
         self.scene = scene
@@ -75,6 +76,8 @@ class ServedScene:
         evaluator from that."""
         if not isinstance(scene, Scene):
             scene = load_scene(scene)
+        if scene.tissue is not None:
+            return cls._load_tissue(scene)
         source = resolve_source(scene)
         started = time.perf_counter()
         try:
@@ -85,6 +88,22 @@ class ServedScene:
         logger.info(
             "scene %s: %s evaluator, %d points, model %s, built in %.2f s",
             scene.name, evaluator.kind, evaluator.n_points, source.summary()["name"],
+            time.perf_counter() - started,
+        )  # fmt: skip
+        return cls(scene, evaluator, source, engine)
+
+    @classmethod
+    def _load_tissue(cls, scene: Scene) -> ServedScene:
+        """A physical scene: its tissue meshed, its FEM engine built (tables from the cache)."""
+        started = time.perf_counter()
+        tissue, source, evaluator = tissue_parts(scene)
+        try:
+            engine = build_scene_engine(scene, tissue)
+        except (SceneError, LiveError, UnknownEngine) as exc:
+            raise scene.error(exc) from None
+        logger.info(
+            "scene %s: %s tissue, %d points, %d modes, built in %.2f s",
+            scene.name, tissue.name, evaluator.n_points, tissue.modes,
             time.perf_counter() - started,
         )  # fmt: skip
         return cls(scene, evaluator, source, engine)
@@ -133,7 +152,7 @@ class ServedScene:
 
     def _describe(self) -> dict[str, Any]:
         scene, placement = self.scene, self.scene.placement
-        return SceneInfo(
+        fields = SceneInfo(
             name=scene.name,
             description=scene.description,
             points=self.evaluator.points,
@@ -151,6 +170,13 @@ class ServedScene:
             evaluator=self.evaluator.kind,
             evaluator_info={k: v for k, v in self.evaluator.info().items() if k != "kind"},
             model=self.source.summary(),
-            units=UNITS,
-            live={} if self.live is None else live_description(self.live),
+            units=UNITS if scene.film else SI_UNITS,
+            live={} if self.live is None else live_description(self.live, self._step_units()),
         ).to_reply_fields()
+        if scene.film:
+            return fields
+        lower, upper = zip(*self.source.spatial_bounds, strict=True)
+        return {**fields, "film": False, "extent": {"lower": list(lower), "upper": list(upper)}}
+
+    def _step_units(self) -> dict[str, str] | None:
+        return None if self.scene.film else SI_STEP_UNITS

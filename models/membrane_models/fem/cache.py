@@ -40,7 +40,7 @@ from membrane_models.fem.tables import FootprintTables, LiveTables, live_tables
 __all__ = ["FORMAT", "TableCache", "cache_directory", "cached_tables", "table_key"]
 
 logger = logging.getLogger(__name__)
-FORMAT = 1  # bump when the tables' meaning changes without a change to the fem sources
+FORMAT = 2  # bump when the tables' meaning changes without a change to the fem sources
 _SOURCES = Path(__file__).resolve().parent
 
 
@@ -185,11 +185,13 @@ def _arrays(tables: LiveTables) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     prints = []
     for i, fp in enumerate(tables.footprints):
         arrays[f"modal_force_{i}"] = fp.modal_force
+        if fp.own is not None:
+            arrays[f"own_{i}"] = fp.own
         if fp.field is not None:
             arrays[f"field_{i}"] = fp.field
-        prints.append(
-            {"radius": fp.radius, "grid": asdict(fp.grid), "cross_grid": asdict(fp.cross_grid)}
-        )
+        own_grid = None if fp.own_grid is None else asdict(fp.own_grid)
+        grids = {"grid": asdict(fp.grid), "cross_grid": asdict(fp.cross_grid), "own_grid": own_grid}
+        prints.append({"radius": fp.radius, **grids})
     for (i, j), values in tables.cross.items():
         arrays[f"cross_{i}_{j}"] = values
     meta = {
@@ -218,8 +220,10 @@ def _tables(meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> LiveTa
             float(fp["radius"]),
             _grid(fp["grid"]),
             _frozen(arrays[f"modal_force_{i}"]),
+            _frozen(arrays[f"own_{i}"]) if f"own_{i}" in arrays else None,
             _frozen(arrays[f"field_{i}"]) if f"field_{i}" in arrays else None,
             _grid(fp["cross_grid"]),
+            None if fp["own_grid"] is None else _grid(fp["own_grid"]),
         )
         for i, fp in enumerate(meta["footprints"])
     )

@@ -20,6 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from membrane_models.fem.inside import inside_boundary
 from membrane_models.fem.interpolation import CentreGrid
 from membrane_models.fem.tables import LiveTables
 from membrane_models.live.tabulated_basis import TableFootprint, TabulatedBasis
@@ -35,9 +36,6 @@ class FemFootprints:
 
     def __init__(self, tables: LiveTables) -> None:
         self.tables = tables
-        segments = tables.boundary
-        self._x1, self._y1 = segments[:, 0, 0], segments[:, 0, 1]
-        self._x2, self._y2 = segments[:, 1, 0], segments[:, 1, 1]
         extent = max(b - a for a, b in zip(tables.lower, tables.upper, strict=True))
         self._on_edge = 1e-12 * extent
 
@@ -55,25 +53,16 @@ class FemFootprints:
     def refuses(self, radius: float) -> str | None:
         if self.index(radius) is not None:
             return None
-        known = ", ".join(f"{r * 1e3:.6g} mm" for r in self.radii)
+        known = ", ".join(f"{r * 1e3:.6g} mm" if r > 0 else "points (0)" for r in self.radii)
         return f"radius {radius:.6g} m: this tissue's tables carry footprints of {known} only"
 
     def contains(self, at: tuple[float, ...]) -> bool:
-        """Inside the mesh's boundary (closed): crossings of a ray along +x, or on an edge."""
-        x, y = at
+        """Inside the mesh's boundary, or on it (``inside.inside_boundary``)."""
         lower, upper = self.tables.lower, self.tables.upper
-        if not (lower[0] <= x <= upper[0] and lower[1] <= y <= upper[1]):
+        if not (lower[0] <= at[0] <= upper[0] and lower[1] <= at[1] <= upper[1]):
             return False
-        x1, y1, x2, y2 = self._x1, self._y1, self._x2, self._y2
-        dx, dy = x2 - x1, y2 - y1
-        length2 = dx * dx + dy * dy
-        t = np.clip(((x - x1) * dx + (y - y1) * dy) / length2, 0.0, 1.0)
-        if float(np.min(np.hypot(x1 + t * dx - x, y1 + t * dy - y))) <= self._on_edge:
-            return True
-        straddles = (y1 > y) != (y2 > y)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            crossing = x1 + (y - y1) * dx / dy
-        return bool(np.count_nonzero(straddles & (x < crossing)) % 2)
+        point = np.array([at], dtype=np.float64)
+        return bool(inside_boundary(point, self.tables.boundary, self._on_edge)[0])
 
     def modal_force(self, at: tuple[float, ...], radius: float) -> FloatArray:
         tables = self.tables.footprints[self._known(radius)]
@@ -95,6 +84,10 @@ class FemCorrection:
 
     def compliance(self, a: TableFootprint, b: TableFootprint) -> float:
         i, j = self.footprints._known(a.radius), self.footprints._known(b.radius)
+        if i == j and a.at == b.at:  # a footprint's own: the finer diagonal table
+            tables = self.tables.footprints[i]
+            assert tables.own is not None and tables.own_grid is not None  # with a correction
+            return float(tables.own_grid.read(tables.own, a.at))
         if i > j:
             a, b, i, j = b, a, j, i
         grid_a = self.tables.footprints[i].cross_grid
@@ -104,7 +97,7 @@ class FemCorrection:
     def field(self, footprint: TableFootprint) -> FloatArray:
         tables = self.tables.footprints[self.footprints._known(footprint.radius)]
         assert tables.field is not None  # a correction exists only with its fields
-        return tables.grid.read(tables.field, footprint.at)
+        return tables.cross_grid.read(tables.field, footprint.at)
 
 
 def fem_basis(

@@ -36,8 +36,10 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from membrane_models.fem.assembly import System
 from membrane_models.fem.errors import InvalidSolve
+from membrane_models.fem.inside import inside_boundary
 from membrane_models.fem.interpolation import CentreGrid, prefilter
 from membrane_models.fem.modal import Modes
+from membrane_models.fem.models import Membrane
 from membrane_models.fem.sampling import sampler
 
 __all__ = [
@@ -57,7 +59,10 @@ _Array = TypeVar("_Array", bound=NDArray[Any])
 # 2.4e-4 of the whole compliance (benchmarks/fem_figures.py has the skin patch's).
 _CENTRES_PER_RADIUS = 3.0
 _CROSS_CENTRES_PER_RADIUS = 1.5
+# A point force's tables take the grids of a footprint this many elements wide.
+_POINT_RADIUS_PER_ELEMENT = 0.75
 _CHUNK = 128  # centres per block when building load vectors
+_SOLVE_CHUNK = 1024  # centres per block of static-correction solves
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,20 +73,27 @@ class FootprintTables:
         radius: r (m).
         grid: the centres.
         modal_force: (nx, ny, modes): s(c).
-        field: (nx, ny, lattice points): the residual field of a unit force, or None without
-            a static correction.
-        cross_grid: the coarser grid of the compliance tables (``LiveTables.cross``).
+        own: on ``own_grid``: the static correction's compliance under the footprint,
+            r(c, c), or None without a static correction.
+        field: (cx, cy, lattice points) on ``cross_grid``: the residual field of a unit force,
+            or None without a static correction.
+        cross_grid: the coarser grid of the field and of the compliance between two
+            footprints (``LiveTables.cross``).
+        own_grid: ``cross_grid`` for a footprint; ``grid`` for a point, whose own compliance
+            varies on the element's scale.
     """
 
     radius: float
     grid: CentreGrid
     modal_force: FloatArray
+    own: FloatArray | None
     field: FloatArray | None
     cross_grid: CentreGrid
+    own_grid: CentreGrid | None = None
 
     @property
     def nbytes(self) -> int:
-        arrays = [self.modal_force, self.field]
+        arrays = [self.modal_force, self.own, self.field]
         return sum(int(a.nbytes) for a in arrays if a is not None)
 
 
@@ -176,7 +188,10 @@ def live_tables(
 
 
 def footprint_loads(system: System, radius: float, centres: FloatArray) -> FloatArray:
-    """Load vectors f_c (N, centres) of unit Gaussian footprints of ``radius`` at ``centres``."""
+    """Load vectors f_c (N, centres) of unit Gaussian footprints of ``radius`` at ``centres``
+    (radius 0: unit point forces, 0 for a centre off the mesh, where it acts on the support)."""
+    if radius == 0.0:
+        return _point_loads(system, centres)
     basis = system.basis
     x = np.asarray(basis.global_coordinates())  # (2, elements, points)
     qx, qy = x[0].reshape(-1), x[1].reshape(-1)
@@ -271,21 +286,58 @@ def _footprint_tables(
 ) -> tuple[FootprintTables, FloatArray | None, FloatArray]:
     """One radius's tables, with its centres' half solves L^-1 f_c and s_c / w (the cross
     tables' factors; None without a static correction)."""
-    if not (math.isfinite(radius) and radius > 0.0):
-        raise InvalidSolve(f"a footprint radius must be > 0 m, got {radius!r}")
-    grid = CentreGrid.covering(lower, upper, radius / _CENTRES_PER_RADIUS)
-    cross_grid = CentreGrid.covering(lower, upper, radius / _CROSS_CENTRES_PER_RADIUS)
+    if not (math.isfinite(radius) and radius >= 0.0):
+        raise InvalidSolve(f"a footprint radius must be >= 0 m, got {radius!r}")
+    if radius == 0.0 and isinstance(system.model, Membrane):
+        raise InvalidSolve(
+            "a point force on a membrane has an infinite displacement under it (logarithmic): "
+            "give a footprint radius > 0"
+        )
+    # A point's tables follow the mesh (its modes' values vary on the element's scale).
+    scale = radius if radius > 0.0 else system.domain.size * _POINT_RADIUS_PER_ELEMENT
+    grid = CentreGrid.covering(lower, upper, scale / _CENTRES_PER_RADIUS)
+    cross_grid = CentreGrid.covering(lower, upper, scale / _CROSS_CENTRES_PER_RADIUS)
     loads = footprint_loads(system, radius, grid.nodes())
     forces = modes.shapes.T @ loads  # (modes, centres)
     nx, ny = grid.shape
     modal_force = prefilter(forces.T.reshape(nx, ny, -1), (0, 1))
     if residual is None:
-        return FootprintTables(radius, grid, modal_force, None, cross_grid), None, forces
-    field = prefilter(residual.field(loads).T.reshape(nx, ny, -1), (0, 1))
+        tables = FootprintTables(radius, grid, modal_force, None, None, cross_grid)
+        return tables, None, forces
     coarse = footprint_loads(system, radius, cross_grid.nodes())
+    cx, cy = cross_grid.shape
+    field = prefilter(residual.field(coarse).T.reshape(cx, cy, -1), (0, 1))
+    half = residual.half(coarse)
     weighted = (modes.shapes.T @ coarse) / modes.omega[:, None]
-    tables = FootprintTables(radius, grid, modal_force, field, cross_grid)
-    return tables, residual.half(coarse), weighted
+    if radius > 0.0:  # a footprint's own compliance is as smooth as the cross one: same grid
+        own_grid, own = cross_grid, _own(half, weighted)
+    else:  # a point's varies on the element's scale: the finer grid, solved in blocks
+        own_grid, own = grid, _point_own(residual, loads, forces / modes.omega[:, None])
+    own_table = prefilter(own.reshape(own_grid.shape), (0, 1))
+    tables = FootprintTables(radius, grid, modal_force, own_table, field, cross_grid, own_grid)
+    return tables, half, weighted
+
+
+def _own(half: FloatArray, weighted: FloatArray) -> FloatArray:
+    """r(c, c) per column: |L^-1 f_c|^2 - |s_c / w|^2."""
+    return np.asarray(np.einsum("ij,ij->j", half, half) - np.einsum("ij,ij->j", weighted, weighted))
+
+
+def _point_own(residual: _Residual, loads: FloatArray, weighted: FloatArray) -> FloatArray:
+    own = np.empty(loads.shape[1])
+    for start in range(0, loads.shape[1], _SOLVE_CHUNK):  # bounded memory: N x chunk at most
+        block = slice(start, start + _SOLVE_CHUNK)
+        own[block] = _own(residual.half(loads[:, block]), weighted[:, block])
+    return own
+
+
+def _point_loads(system: System, centres: FloatArray) -> FloatArray:
+    """Unit point forces at ``centres`` (N, centres): the basis evaluated there; 0 off the mesh."""
+    out = np.zeros((system.dofs, centres.shape[0]))
+    inside = _inside_mesh(system, centres)
+    if inside.any():
+        out[:, inside] = sampler(system, centres[inside]).T.toarray()
+    return out
 
 
 def _quadrature_matrix(system: System) -> sp.csr_matrix:
@@ -313,16 +365,9 @@ def boundary_segments(system: System) -> FloatArray:
 
 
 def _inside_mesh(system: System, xy: FloatArray) -> NDArray[np.bool_]:
-    """Which points lie on the mesh (its element finder; points on an edge count)."""
-    finder = system.domain.mesh.element_finder()
-    inside = np.zeros(xy.shape[0], dtype=bool)
-    for index, (x, y) in enumerate(xy):
-        try:
-            finder(np.array([x]), np.array([y]))
-        except ValueError:
-            continue
-        inside[index] = True
-    return inside
+    """Which points lie on the mesh (points on its boundary count)."""
+    extent = float(np.ptp(system.domain.mesh.p, axis=1).max())
+    return inside_boundary(xy, boundary_segments(system), 1e-12 * extent)
 
 
 def _frozen(array: _Array) -> _Array:

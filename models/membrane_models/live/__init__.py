@@ -20,6 +20,7 @@ from membrane_models.live.factory import build_modal_engine
 from membrane_models.live.film import film_frames, film_load
 from membrane_models.live.interface import (
     ENGINE_INPUTS,
+    BoundedEngine,
     Hold,
     LiveEngine,
     Load,
@@ -31,6 +32,7 @@ from membrane_models.live.interface import (
 
 __all__ = [
     "ENGINE_INPUTS",
+    "BoundedEngine",
     "Hold",
     "InvalidEngineSettings",
     "InvalidLoad",

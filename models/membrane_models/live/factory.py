@@ -27,13 +27,17 @@ _MAX_MODES = 1024
 
 
 def build_modal_engine(
-    problem: Problem, lattice: tuple[int, ...], dt: float, options: Mapping[str, object]
+    problem: Problem | object, lattice: tuple[int, ...], dt: float, options: Mapping[str, object]
 ) -> ModalEngine:
     """The exact modal engine on ``lattice`` with step ``dt`` and the scene's options.
 
     Raises:
         InvalidEngineSettings: an unknown option, or one of the wrong type or range.
     """
+    if not isinstance(problem, Problem):
+        raise InvalidEngineSettings(
+            "the modal engine steps a dimensionless problem; a [tissue] scene's engine is fem"
+        )
     unknown = sorted(set(options) - set(MODAL_OPTIONS))
     if unknown:
         known = ", ".join(MODAL_OPTIONS)

@@ -16,13 +16,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Generic, Literal, Protocol, TypeVar
+from typing import Generic, Literal, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "ENGINE_INPUTS",
+    "BoundedEngine",
     "Hold",
     "LiveEngine",
     "Load",
@@ -118,6 +119,17 @@ class Start(Generic[StateT]):
     state: StateT
     displacement_residual: float
     velocity_residual: float
+
+
+@runtime_checkable
+class BoundedEngine(Protocol):
+    """An engine that can say whether a centre lies in its domain (a step's ``strict`` check)."""
+
+    def contains(self, at: tuple[float, ...]) -> bool:
+        """Whether ``at`` lies in the domain (closed)."""
+
+    def domain_text(self) -> str:
+        """The domain's extent in words, for a refusal (e.g. "[0, 0.05] x [0, 0.05] m")."""
 
 
 class LiveEngine(Protocol[StateT]):

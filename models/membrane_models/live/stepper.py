@@ -109,6 +109,7 @@ class ModalStepper(Generic[FootprintT]):
         hold: "zoh" (loads constant over a step) or "foh" (linear from the last step's).
         budget: the most one step may cost (``cost.StepBudget``; default 5 ms of work and
             512 KiB of held spectra); a step over it is refused with its figure.
+        kind: the engine kind ``describe`` names (its ``membrane.engines`` entry).
 
     Raises:
         InvalidEngineSettings: a setting out of range.
@@ -122,8 +123,10 @@ class ModalStepper(Generic[FootprintT]):
         damping: float | ArrayLike = 0.0,
         hold: Hold = "zoh",
         budget: StepBudget | None = None,
+        kind: str = "modal",
     ) -> None:
         self.basis = basis
+        self.kind = kind
         self._dims = basis.spatial_dims
         self._lattice = basis.lattice_shape
         self._dt = positive(dt, "dt")
@@ -268,7 +271,7 @@ class ModalStepper(Generic[FootprintT]):
     def describe(self) -> dict[str, object]:
         """The engine's settings and sizes, as plain data (the basis's own beside the core's)."""
         return {
-            "engine": "modal",
+            "engine": self.kind,
             "inputs": sorted(self.inputs),
             **self.subject(),
             "lattice": list(self._lattice),
@@ -291,6 +294,19 @@ class ModalStepper(Generic[FootprintT]):
             "damping": "per mode",
             "damping_range": [float(self.damping.min()), float(self.damping.max())],
         }
+
+    def contains(self, at: tuple[float, ...]) -> bool:
+        """Whether a centre lies in the basis's domain (``interface.BoundedEngine``)."""
+        return self.basis.contains(at)
+
+    def domain_text(self) -> str:
+        """The domain's extent in words (the basis's, else the unit interval or square)."""
+        extent = self.basis.describe().get("lower"), self.basis.describe().get("upper")
+        if extent[0] is None or extent[1] is None:
+            return " x ".join(["[0, 1]"] * self._dims) + " (problem units)"
+        lower, upper = extent
+        assert isinstance(lower, list) and isinstance(upper, list)
+        return " x ".join(f"[{a:.6g}, {b:.6g}]" for a, b in zip(lower, upper, strict=True)) + " m"
 
     def subject(self) -> dict[str, object]:
         """What the engine models, for ``describe`` (an engine over a named problem says so)."""
