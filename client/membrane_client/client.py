@@ -14,7 +14,7 @@ import zmq
 
 from membrane_client.errors import MembraneError, UserError
 from membrane_client.frame import Frame, SceneInfo
-from membrane_client.protocol import Op, Request, read_reply
+from membrane_client.protocol import Op, Request, peek_reply, read_reply
 from membrane_client.replies import HelloReply, StatsReply
 from membrane_client.session import Session
 from membrane_client.transport import LazyPirate, Transport
@@ -154,7 +154,8 @@ class Client:
         given = {key: value for key, value in fields.items() if value is not None}
         session = given.pop("session", self.session_id)  # a live Session sends its own id
         payload = Request(op, request_id, session, **given).to_wire()
-        return read_reply(self._transport.round_trip(payload), request_id)
+        reply = self._transport.round_trip(payload, lambda data: _earlier(data, request_id))
+        return read_reply(reply, request_id)
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -188,3 +189,9 @@ def _revision(reply: dict[str, Any]) -> str | None:
     """A query reply's scene revision (None from servers that send none)."""
     revision = reply.get("revision")
     return revision if isinstance(revision, str) else None
+
+
+def _earlier(reply: bytes, request_id: int) -> bool:
+    """Whether ``reply`` answers an earlier request of this client (a re-send's late twin)."""
+    answered = peek_reply(reply)[0]
+    return 0 <= answered < request_id

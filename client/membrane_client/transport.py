@@ -2,6 +2,9 @@
 
 After a timeout a REQ socket can neither send nor receive: it is closed and a fresh one opened
 for the next attempt. Every socket has LINGER 0, so closing never waits on undelivered messages.
+A reply the caller calls ``stale`` (one to an earlier request: a late duplicate of a re-send,
+which a relay between client and server may deliver to the newer socket) is a lost reply too:
+the socket is replaced and the request re-sent, never the stale reply handed up.
 A Client takes any ``Transport``: tests and embedders may hand requests to a dispatcher in the
 same process instead (``membrane_server.in_process``).
 """
@@ -9,7 +12,7 @@ same process instead (``membrane_server.in_process``).
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Protocol
 
 import zmq
@@ -25,8 +28,9 @@ logger = logging.getLogger(__name__)
 class Transport(Protocol):
     """Carries one request's bytes to a server and returns the reply's bytes."""
 
-    def round_trip(self, payload: bytes) -> bytes:
-        """Send ``payload``, return the reply (raises Timeout or MembraneError)."""
+    def round_trip(self, payload: bytes, stale: Callable[[bytes], bool] | None = None) -> bytes:
+        """Send ``payload``, return the reply (raises Timeout or MembraneError); a reply
+        ``stale`` picks is not the answer (see the module docstring)."""
         ...
 
     def close(self) -> None:
@@ -53,14 +57,18 @@ class LazyPirate:
         self._socket_options = dict(socket_options or {})
         self._socket: zmq.Socket[bytes] | None = self._open_socket()
 
-    def round_trip(self, payload: bytes) -> bytes:
+    def round_trip(self, payload: bytes, stale: Callable[[bytes], bool] | None = None) -> bytes:
         attempts = self.retries + 1
         for attempt in range(1, attempts + 1):
             socket = self._socket or self._open_socket()
             self._socket = socket
             try:
                 socket.send(payload, copy=True)
-                return socket.recv(copy=True)
+                reply = socket.recv(copy=True)
+                if stale is None or not stale(reply):
+                    return reply
+                self.close()  # an earlier request's late duplicate: as good as lost
+                logger.debug("stale reply from %s (attempt %d/%d)", self.address, attempt, attempts)
             except zmq.Again:
                 # The REQ socket is now stuck mid-exchange: throw it away, never reuse it.
                 self.close()

@@ -15,6 +15,8 @@ simulator loop without a server process::
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from membrane_server.dispatch import Dispatcher
 
 __all__ = ["InProcessTransport"]
@@ -27,8 +29,9 @@ class InProcessTransport:
         self.dispatcher = dispatcher
         self.peer = peer  # who the dispatcher is told sent each request (e.g. "key:...")
 
-    def round_trip(self, payload: bytes) -> bytes:
-        """The dispatcher's reply to ``payload`` (it never raises: errors are replies)."""
+    def round_trip(self, payload: bytes, stale: Callable[[bytes], bool] | None = None) -> bytes:
+        """The dispatcher's reply to ``payload`` (it never raises: errors are replies; in one
+        process no reply can be stale)."""
         return self.dispatcher.handle([payload], self.peer).reply
 
     def close(self) -> None:

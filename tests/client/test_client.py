@@ -30,7 +30,8 @@ from membrane_client.protocol import decode, encode, ok_reply
 class ScriptedServer:
     """A ROUTER on loopback that answers each request as a script says (for fault tests).
 
-    ``script(index, request) -> bytes | None``: the reply payload, or None to stay silent.
+    ``script(index, request) -> bytes | list[bytes] | None``: the reply payload (several: sent
+    one after another on the same connection), or None to stay silent.
     """
 
     def __init__(self, script: Any) -> None:
@@ -54,8 +55,8 @@ class ScriptedServer:
             message = decode(payload)
             reply = self._script(len(self.received), message)
             self.received.append(message)
-            if reply is not None:
-                self._socket.send_multipart([identity, empty, reply])
+            for part in [] if reply is None else reply if isinstance(reply, list) else [reply]:
+                self._socket.send_multipart([identity, empty, part])
 
     def close(self) -> None:
         self._stop.set()
@@ -99,6 +100,22 @@ def test_lazy_pirate_retries_on_a_fresh_socket(scripted: Any) -> None:
         assert client.ping() > 0
     assert len(server.received) == 2
     assert server.received[0]["id"] == server.received[1]["id"]  # the same request, re-sent
+
+
+def test_a_stale_reply_is_never_taken_for_the_answer(scripted: Any) -> None:
+    """A relay may deliver a re-sent request's late duplicate reply while the next request
+    waits: the client treats it as a lost reply (fresh socket, re-send), never as the answer."""
+
+    def script(index: int, message: dict[str, Any]) -> bytes | list[bytes]:
+        if index == 1:  # the second ping: the first ping's twin arrives first
+            return [encode(ok_reply(message["id"] - 1, pong=True, time=0.0)), pong(message)]
+        return pong(message)
+
+    server = scripted(script)
+    with Client(server.address, timeout=1.0, retries=2) as client:
+        client.ping()
+        client.ping()  # would raise ProtocolError("reply id 1, expected 2") if taken
+    assert [m["id"] for m in server.received] == [1, 2, 2]  # the second ping re-sent once
 
 
 def test_bounded_retries_then_timeout(scripted: Any) -> None:
