@@ -38,6 +38,7 @@ class FemFootprints:
         self.tables = tables
         extent = max(b - a for a, b in zip(tables.lower, tables.upper, strict=True))
         self._on_edge = 1e-12 * extent
+        self._rectangular = _fills_its_box(tables.boundary, tables.lower, tables.upper)
 
     @property
     def radii(self) -> tuple[float, ...]:
@@ -61,6 +62,8 @@ class FemFootprints:
         lower, upper = self.tables.lower, self.tables.upper
         if not (lower[0] <= at[0] <= upper[0] and lower[1] <= at[1] <= upper[1]):
             return False
+        if self._rectangular:  # the box is the domain: nothing more to test
+            return True
         point = np.array([at], dtype=np.float64)
         return bool(inside_boundary(point, self.tables.boundary, self._on_edge)[0])
 
@@ -142,3 +145,16 @@ def _read_pair(
     ax, ay, wa = grid_a.stencil(a)
     bx, by, wb = grid_b.stencil(b)
     return float(wa @ coefficients[ax, ay, bx, by].reshape(16, 16) @ wb)
+
+
+def _fills_its_box(
+    segments: FloatArray, lower: tuple[float, float], upper: tuple[float, float]
+) -> bool:
+    """Whether every boundary segment lies on the bounding box (a rectangle without holes)."""
+    x, y = segments[:, :, 0], segments[:, :, 1]
+    tol = 1e-12 * max(upper[0] - lower[0], upper[1] - lower[1])
+    on_x = (np.abs(x - lower[0]) <= tol) | (np.abs(x - upper[0]) <= tol)
+    on_y = (np.abs(y - lower[1]) <= tol) | (np.abs(y - upper[1]) <= tol)
+    vertical = on_x.all(axis=1) & (np.abs(x[:, 0] - x[:, 1]) <= tol)
+    horizontal = on_y.all(axis=1) & (np.abs(y[:, 0] - y[:, 1]) <= tol)
+    return bool((vertical | horizontal).all())

@@ -147,3 +147,24 @@ def test_rayleigh_damping_decays_each_mode_at_its_own_ratio(plate: Plate) -> Non
         np.testing.assert_allclose(
             getattr(uniform.transition, name), getattr(scalar.transition, name), rtol=1e-13
         )
+
+
+def test_inside_the_boundary_of_a_disk_and_of_a_polygon_with_a_hole() -> None:
+    from membrane_models.fem.inside import inside_boundary
+    from membrane_models.fem.live_basis import _fills_its_box
+    from membrane_models.fem.tables import boundary_segments
+
+    system = fem.assemble(fem.disk(0.02, 0.004, (0.02, 0.02)), SKIN, "clamped")
+    segments = boundary_segments(system)
+    angles = np.linspace(0.0, 2 * np.pi, 50, endpoint=False)
+    ring = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    assert inside_boundary(0.02 + 0.019 * ring, segments, 1e-15).all()
+    assert not inside_boundary(0.02 + 0.021 * ring, segments, 1e-15).any()
+    assert not _fills_its_box(segments, (0.0, 0.0), (0.04, 0.04))
+    square = fem.assemble(fem.rectangle(SIDE, SIDE, 0.01), SKIN, "clamped")
+    assert _fills_its_box(boundary_segments(square), (0.0, 0.0), (SIDE, SIDE))
+    holed = [[[0.0, 0.0], [1.0, 0.0]], [[1.0, 0.0], [1.0, 1.0]], [[1.0, 1.0], [0.0, 1.0]],
+             [[0.0, 1.0], [0.0, 0.0]], [[0.4, 0.4], [0.6, 0.4]], [[0.6, 0.4], [0.6, 0.6]],
+             [[0.6, 0.6], [0.4, 0.6]], [[0.4, 0.6], [0.4, 0.4]]]  # fmt: skip
+    points = np.array([[0.2, 0.5], [0.5, 0.5], [0.5, 0.4], [1.2, 0.5]])
+    assert inside_boundary(points, np.array(holed), 1e-12).tolist() == [True, False, True, False]
