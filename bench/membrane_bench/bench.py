@@ -66,6 +66,7 @@ class Target:
         reply_bytes: Length of the server's reply to one benchmarked request.
         evaluator: The scene's evaluator kind (``describe``; "live" for live steps), or None.
         probe_at: Where a live step's probe presses (the middle of the scene's domain).
+        probe_radius: Its footprint's radius (a physical scene's first table radius).
     """
 
     address: str
@@ -74,6 +75,7 @@ class Target:
     reply_bytes: int
     evaluator: str | None
     probe_at: tuple[float, ...] = (0.5, 0.5)
+    probe_radius: float = STEP_RADIUS
 
 
 def probe(
@@ -116,13 +118,23 @@ def _probe_live(client: Client, info: SceneInfo, frames: bool) -> Target:
     """A live scene's target: one step with the load's probe, in a session of its own."""
     if not info.live:
         raise BenchError(f"scene {info.name} is not live: --payload step needs a live scene")
-    centre = tuple(0.5 for _ in range(info.points.shape[1]))  # the middle of the unit domain
-    probe = Probe(centre, STEP_DEPTH, STEP_RADIUS).to_wire()
+    centre, radius = _probe_place(info)
+    probe = Probe(centre, STEP_DEPTH, radius).to_wire()
     with Session(client, info.name).open() as session:
         reply = client.request(
             Op.STEP, scene=info.name, session=session.id, k=0, probes=[probe], frame=frames
         )
-    return Target(client.address, info.name, (0.0,), _reply_bytes(reply), "live", centre)
+    return Target(client.address, info.name, (0.0,), _reply_bytes(reply), "live", centre, radius)
+
+
+def _probe_place(info: SceneInfo) -> tuple[tuple[float, ...], float]:
+    """The middle of the scene's domain and a radius its engine carries: a physical scene's
+    extent (m) and first footprint radius, else the unit domain's middle and 0.05."""
+    if isinstance(info.live.get("radii"), list):  # a physical scene
+        lower, upper = info.points.min(axis=0), info.points.max(axis=0)
+        centre = tuple(float(a + b) / 2 for a, b in zip(lower, upper, strict=True))
+        return centre, float(info.live["radii"][0])
+    return tuple(0.5 for _ in range(info.points.shape[1])), STEP_RADIUS
 
 
 def _reply_bytes(reply: dict[str, Any]) -> int:
@@ -306,7 +318,9 @@ def run_bench(
     if spec.payload == "query":
         spec = replace(spec, times=target.times, scene=target.scene)
     elif spec.payload in ("step", "step-frames"):
-        spec = replace(spec, scene=target.scene, probe_at=target.probe_at)
+        spec = replace(
+            spec, scene=target.scene, probe_at=target.probe_at, probe_radius=target.probe_radius
+        )
     session = secrets.token_hex(16)  # bench clients identify themselves as a real client does
     spec = replace(spec, session=session)
     part = replace(spec, duration=spec.duration / segments)

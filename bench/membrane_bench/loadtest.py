@@ -111,6 +111,7 @@ class LoadSpec:
             real client sends its own session id. None sends none (a live step needs one: it
             then uses ``"bench"``).
         probe_at: Where a live step's probe presses (lattice coordinates of the scene).
+        probe_radius: Its footprint's radius (one the scene's engine carries).
     """
 
     mode: Mode
@@ -126,6 +127,7 @@ class LoadSpec:
     deadline: float | None = None
     session: str | None = None
     probe_at: tuple[float, ...] = (0.5, 0.5)
+    probe_radius: float = STEP_RADIUS
 
     def __post_init__(self) -> None:
         _require(self.mode in ("open", "closed"), f"mode must be open or closed, not {self.mode}")
@@ -358,7 +360,7 @@ class _Channel:
         prefix = spec.session or ("bench" if self.live else None)
         self._session = None if prefix is None else f"{prefix}-{client}"
         self._steps = 0  # live: steps queued so far, the next step's k
-        self._probes = [Probe(spec.probe_at, STEP_DEPTH, STEP_RADIUS).to_wire()]
+        self._probes = [Probe(spec.probe_at, STEP_DEPTH, spec.probe_radius).to_wire()]
 
     def request_bytes(self, number: int) -> bytes:
         """Encode request ``number`` of this client (ids are per socket, so ``number`` is fine)."""
