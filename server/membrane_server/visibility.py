@@ -33,7 +33,11 @@ def lattice_spacing(points: np.ndarray) -> float | None:
 
 
 def invisible_motion(scene: Scene, evaluator: Evaluator) -> str | None:
-    """A one-line warning when the scene's motion, as placed, is too small to see; else None."""
+    """A one-line warning when the scene's motion, as placed, is too small to see; else None.
+    Films only: a physical scene is placed at its true size (scale 1) and moves as its
+    sessions press it, which no film can foresee."""
+    if not scene.film:
+        return None
     spacing = lattice_spacing(evaluator.points)
     if spacing is None:
         return None
