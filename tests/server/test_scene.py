@@ -35,7 +35,9 @@ def scene_with(**changes: Any) -> Scene:
 
 
 def test_builtin_scenes_are_the_documented_ones() -> None:
-    assert builtin_scenes() == ["membrane", "membrane-live", "rope", "rope-live", "rope-plucked"]
+    assert builtin_scenes() == [
+        "membrane", "membrane-live", "rope", "rope-live", "rope-plucked", "skin-disk", "skin-patch",
+    ]  # fmt: skip
 
 
 def test_rope_scene() -> None:
@@ -106,7 +108,6 @@ def test_lattice_of_the_wrong_dimension_is_refused() -> None:
         ({"placement": {"origin": [0, 0]}}, "placement.origin.2", "Field required"),
         ({"evaluater": "exact"}, "evaluater", "Extra inputs"),
         ({"name": "bad name!"}, "name", "pattern"),
-        ({"model": ""}, "model", "at least 1"),
         ({"table_max_bytes": 0}, "table_max_bytes", "greater than 0"),
     ],
 )
@@ -121,8 +122,12 @@ def test_validation_errors_name_the_field(changes: dict[str, Any], field: str, r
 def test_missing_fields_are_named() -> None:
     with pytest.raises(SceneError) as caught:
         scene_from_dict({"name": "s"})
-    for field in ("model", "evaluator", "lattice", "dt", "duration"):
+    for field in ("lattice", "dt", "duration"):
         assert f"{field}: Field required" in str(caught.value)
+    complete = {"name": "s", "lattice": {"nx": 5}, "dt": 0.1, "duration": 1.0}
+    for missing in ({}, {"model": "string-forced"}, {"model": "", "evaluator": "exact"}):
+        with pytest.raises(SceneError, match=r"give model and evaluator .* or a \[tissue\]"):
+            scene_from_dict({**complete, **missing})
 
 
 def test_load_scene_from_file_defaults_name_to_stem(tmp_path: Path) -> None:
@@ -145,7 +150,8 @@ def test_invalid_toml_is_a_scene_error(tmp_path: Path) -> None:
 
 
 def test_unknown_builtin_lists_the_known_ones() -> None:
-    with pytest.raises(SceneError, match="membrane, membrane-live, rope, rope-live, rope-plucked"):
+    known = "membrane, membrane-live, rope, rope-live, rope-plucked, skin-disk, skin-patch"
+    with pytest.raises(SceneError, match=known):
         load_scene("skin")
 
 
