@@ -216,15 +216,21 @@ class Scene(_Strict):
     policy: Literal["error", "clamp", "hold"] = "hold"
     table_max_bytes: int = Field(default=DEFAULT_TABLE_MAX_BYTES, gt=0)
     live: LiveSettings | None = None
+    # Whether `query` answers a film; a live scene that gives no `duration` has none (its
+    # `query` answers the rest shape and nothing is built for it at load).
+    film: bool = True
     # Where the file was read from: relative model paths are resolved against its folder.
     source: Path | None = Field(default=None, exclude=True)
 
     @model_validator(mode="before")
     @classmethod
-    def _tissue_has_no_film(cls, data: Any) -> Any:
-        # A physical scene's time grid is its step alone: `query` answers its rest shape.
-        if isinstance(data, dict) and "tissue" in data and "duration" not in data and "dt" in data:
-            return {**data, "duration": data["dt"]}
+    def _live_without_film(cls, data: Any) -> Any:
+        # A live scene without a duration (a physical scene always) has no film: its time grid
+        # is its step alone and `query` answers its rest shape.
+        if not (isinstance(data, dict) and "dt" in data and "duration" not in data):
+            return data
+        if "tissue" in data or "live" in data:
+            return {**data, "duration": data["dt"], "film": False}
         return data
 
     @model_validator(mode="after")
@@ -244,14 +250,17 @@ class Scene(_Strict):
             raise ValueError("a [tissue] scene is live: add a [live] table (its engine: fem)")
         if self.lattice.ny is None or self.lattice.points is not None:
             raise ValueError("lattice: a [tissue] scene needs nx and ny (a grid over the tissue)")
-        if self.duration != self.dt:
+        if self.film:
             raise ValueError("duration: a [tissue] scene has no film; leave duration out")
         return self
 
-    @property
-    def film(self) -> bool:
-        """Whether ``query`` answers a film (a physical scene answers its rest shape)."""
-        return self.tissue is None
+    @model_validator(mode="after")
+    def _film_is_stated_by_duration(self) -> Scene:
+        if not self.film and (self.live is None or self.duration != self.dt):
+            raise ValueError(
+                "film: only a live scene goes without a film, by leaving its duration out"
+            )
+        return self
 
     @field_validator("duration")
     @classmethod

@@ -24,7 +24,13 @@ from membrane_server.reply_encoding import EncodedFields, encode_fields
 from membrane_server.scene import Scene, SceneError, load_scene
 from membrane_server.source import ModelSource, resolve_source
 from membrane_server.timeline import Sample, Timeline
-from membrane_server.tissue_scene import SI_STEP_UNITS, SI_UNITS, TissueSource, tissue_parts
+from membrane_server.tissue_scene import (
+    SI_STEP_UNITS,
+    SI_UNITS,
+    RestEvaluator,
+    TissueSource,
+    tissue_parts,
+)
 
 __all__ = ["UNITS", "ServedScene"]
 
@@ -81,7 +87,11 @@ class ServedScene:
         source = resolve_source(scene)
         started = time.perf_counter()
         try:
-            evaluator = build_evaluator(scene, source, threads=threads)
+            evaluator = (
+                build_evaluator(scene, source, threads=threads)
+                if scene.film
+                else RestEvaluator(scene.lattice.coordinates(source.spatial_bounds))
+            )
             engine = None if scene.live is None else build_scene_engine(scene, source.problem)
         except (SceneError, LiveError, UnknownEngine) as exc:  # where the file is not known
             raise scene.error(exc) from None
@@ -170,13 +180,13 @@ class ServedScene:
             evaluator=self.evaluator.kind,
             evaluator_info={k: v for k, v in self.evaluator.info().items() if k != "kind"},
             model=self.source.summary(),
-            units=UNITS if scene.film else SI_UNITS,
+            units=SI_UNITS if scene.tissue is not None else UNITS,
             live={} if self.live is None else live_description(self.live, self._step_units()),
         ).to_reply_fields()
         if scene.film:
-            return fields
+            return fields  # a film scene's describe is protocol v1's, unchanged
         lower, upper = zip(*self.source.spatial_bounds, strict=True)
         return {**fields, "film": False, "extent": {"lower": list(lower), "upper": list(upper)}}
 
     def _step_units(self) -> dict[str, str] | None:
-        return None if self.scene.film else SI_STEP_UNITS
+        return None if self.scene.tissue is None else SI_STEP_UNITS

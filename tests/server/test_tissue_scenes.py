@@ -163,3 +163,30 @@ def test_a_tissue_scene_names_no_model_and_a_film_scene_needs_one() -> None:
     with pytest.raises(SceneError, match="is live"):
         scene_from_dict({k: v for k, v in _tissue_scene().items() if k != "live"})
     assert load_scene("skin-patch").film is False and load_scene("membrane").film is True
+
+
+def test_a_live_scene_without_a_duration_builds_no_film() -> None:
+    scene = scene_from_dict(
+        {
+            "name": "poke-only",
+            "model": "membrane-forced",
+            "evaluator": "exact",
+            "dt": 0.001,
+            "lattice": {"nx": 12, "ny": 12},
+            "live": {"damping": 0.02},
+        }
+    )
+    assert scene.film is False and scene.duration == scene.dt
+    served = ServedScene.load(scene)
+    assert served.evaluator.kind == "rest"  # nothing built for a film nobody asked for
+    described = served.describe()
+    assert described["film"] is False and described["steps"] == 2
+    assert described["extent"] == {"lower": [0.0, 0.0], "upper": [1.0, 1.0]}
+    assert described["units"]["displacement"].startswith("problem units")
+    assert not np.any(served.frame(served.timeline.resolve(0.7)))
+    engine = served.live
+    assert engine is not None
+    result = engine.step(engine.start().state, [], [EngineProbe((0.5, 0.5), 1e-4, 0.05)])
+    assert result.probes[0].in_contact
+    with pytest.raises(SceneError, match="only a live scene goes without a film"):
+        scene_from_dict({**scene.model_dump(exclude={"source"}), "live": None, "film": False})
