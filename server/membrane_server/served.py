@@ -16,6 +16,8 @@ import numpy as np
 
 from membrane_client.frame import Frame, SceneInfo
 from membrane_models.live import LiveEngine, LiveError
+from membrane_models.problems import MembraneForced, StringForced
+from membrane_server.engine_film import EngineFilmEvaluator, films_from_engine
 from membrane_server.engines import UnknownEngine
 from membrane_server.evaluators import Evaluator, build_evaluator
 from membrane_server.live import build_scene_engine, live_description
@@ -87,12 +89,8 @@ class ServedScene:
         source = resolve_source(scene)
         started = time.perf_counter()
         try:
-            evaluator = (
-                build_evaluator(scene, source, threads=threads)
-                if scene.film
-                else RestEvaluator(scene.lattice.coordinates(source.spatial_bounds))
-            )
             engine = None if scene.live is None else build_scene_engine(scene, source.problem)
+            evaluator = _film(scene, source, engine, threads)
         except (SceneError, LiveError, UnknownEngine) as exc:  # where the file is not known
             raise scene.error(exc) from None
         logger.info(
@@ -190,3 +188,18 @@ class ServedScene:
 
     def _step_units(self) -> dict[str, str] | None:
         return None if self.scene.tissue is None else SI_STEP_UNITS
+
+
+def _film(
+    scene: Scene, source: ModelSource, engine: LiveEngine[Any] | None, threads: int
+) -> Evaluator:
+    """What answers ``query``: the rest shape (no film), the live engine's own film (a live
+    scene on a forced problem, so that film and sessions agree), or the scene's evaluator."""
+    if not scene.film:
+        return RestEvaluator(scene.lattice.coordinates(source.spatial_bounds))
+    problem = source.problem
+    forced = isinstance(problem, StringForced | MembraneForced)
+    if source.manifest is None and forced and films_from_engine(problem, engine):
+        assert engine is not None and isinstance(problem, StringForced | MembraneForced)
+        return EngineFilmEvaluator(scene, problem, engine)
+    return build_evaluator(scene, source, threads=threads)
