@@ -4,12 +4,15 @@ reply) and one served frame (Frame, the ``query`` reply). The server writes them
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
 
 import numpy as np
 
+from membrane_client import coordinates
+from membrane_client.coordinates import Extent, OnceGate
 from membrane_client.errors import ProtocolError, UserError
 from membrane_client.protocol import pack_array, unpack_array
 
@@ -22,7 +25,8 @@ AXES = ("x", "y", "z")
 class SceneInfo:
     """A served scene as ``describe`` returns it: the lattice, its placement and its time grid.
 
-    Coordinates and displacements are in problem units, times in seconds (``units`` says more).
+    Coordinates and displacements are in the scene's units: problem units for a dimensionless
+    scene, SI for a physical one; times in seconds (``units`` says which).
     """
 
     name: str  # what requests put in ``scene``
@@ -47,6 +51,13 @@ class SceneInfo:
     # Names the scene's content: a query reply with another revision means the server reloaded
     # the scene with changes (the client then describes it again).
     revision: str = ""
+    # The scene's box in scene coordinates when describe gives one (a physical scene in m: its
+    # bounding box); ``extent`` falls back on the lattice's own box.
+    declared_extent: Extent | None = None
+    # Whether ``query`` serves a film (frames over the time grid); a physical live scene has
+    # none: its query answers the rest shape, and only a live session moves it.
+    film: bool = True
+    _outside_warning: OnceGate = field(default_factory=OnceGate, init=False, repr=False)
 
     @property
     def n_points(self) -> int:
@@ -57,6 +68,42 @@ class SceneInfo:
     def axis_index(self) -> int:
         """0, 1 or 2 for axis 'x', 'y' or 'z'."""
         return AXES.index(self.axis)
+
+    @property
+    def dims(self) -> int:
+        """Scene coordinates per point: 1 (a line) or 2 (a surface)."""
+        return int(self.points.shape[1])
+
+    @cached_property
+    def extent(self) -> Extent:
+        """(lower, upper) (d,) arrays: the declared extent, else the lattice points' min/max."""
+        if self.declared_extent is not None:
+            return self.declared_extent
+        return Extent.of_points(self.points)
+
+    def contains(self, scene_point: np.ndarray | tuple[float, ...] | list[float]) -> bool:
+        """Whether a (d,) scene point lies in the extent (boundary included)."""
+        point = np.asarray(scene_point, dtype=np.float64)
+        if point.shape != (self.dims,):
+            raise UserError(
+                f"a scene point of {self.name} has {self.dims} coordinates, got {point.shape}"
+            )
+        return bool(self.extent.contains(point[np.newaxis, :])[0])
+
+    def to_scene(
+        self, world: np.ndarray | Sequence[float] | Sequence[Sequence[float]]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The inverse of ``positions``: (scene points (n, d), heights (n,)) of (3,) or (n, 3)
+        world points, height = (world[axis] - origin[axis]) / scale (a tip below the rest plane
+        is ``-height`` deep). Warns once per SceneInfo (log and UserWarning) when a point falls
+        outside ``extent``: a tool off the tissue usually means a placement is wrong."""
+        scene, heights = coordinates.to_scene(
+            world, self.origin, self.size, self.scale, self.axis_index, self.dims
+        )
+        outside = ~self.extent.contains(scene)
+        if outside.any() and self._outside_warning.first():
+            coordinates.warn_outside(self.name, scene[int(np.argmax(outside))], self.extent)
+        return scene, heights
 
     def times(self) -> np.ndarray:
         """Simulation times of every frame: start_offset + k * dt, k = 0 .. steps - 1."""
@@ -75,9 +122,9 @@ class SceneInfo:
     @cached_property
     def _rest(self) -> np.ndarray:
         # Lattice axes go onto the world axes other than the displacement axis, in x, y, z order.
-        lateral = [i for i in range(3) if i != self.axis_index]
+        lateral = coordinates.lateral_axes(self.axis_index, self.dims)
         rest = np.tile(self.origin.astype(np.float64), (self.n_points, 1))
-        for column in range(self.points.shape[1]):
+        for column in range(self.dims):
             rest[:, lateral[column]] += self.size * self.points[:, column]
         rest.setflags(write=False)
         return rest
@@ -101,6 +148,13 @@ class SceneInfo:
             "model": self.model,
             "units": self.units,
             **({"live": self.live} if self.live else {}),
+            # Only when they say something: an older scene's reply, and so its revision, stays.
+            **(
+                {"extent": self.declared_extent.to_wire()}
+                if self.declared_extent is not None
+                else {}
+            ),
+            **({} if self.film else {"film": False}),
         }
         return {**fields, "revision": self.revision} if self.revision else fields
 
@@ -113,6 +167,7 @@ class SceneInfo:
             points = unpack_array(reply["points"]).astype(np.float64)
             shape = tuple(int(n) for n in reply["shape"])
             origin = np.asarray(placement["origin"], dtype=np.float64)
+            extent = _extent_from_reply(reply, points)
             info = cls(
                 name=str(reply["scene"]),
                 description=str(reply.get("description", "")),
@@ -134,6 +189,8 @@ class SceneInfo:
                 units=dict(reply.get("units", {})),
                 live=dict(reply.get("live", {})),
                 revision=str(reply.get("revision", "")),
+                declared_extent=extent,
+                film=_film_from_reply(reply),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ProtocolError(f"malformed describe reply: {exc!r}") from None
@@ -152,6 +209,23 @@ class SceneInfo:
             problem = f"axis must be x, y or z, got {self.axis!r}"
         if problem is not None:
             raise ProtocolError(f"malformed describe reply: {problem}")
+
+
+def _extent_from_reply(reply: dict[str, Any], points: np.ndarray) -> Extent | None:
+    """The optional ``extent`` (additive in v1: older replies have none)."""
+    if "extent" not in reply:
+        return None
+    if points.ndim != 2:
+        raise ValueError(f"points must be (n, d), got {points.shape}")
+    return Extent.from_wire(reply["extent"], int(points.shape[1]))
+
+
+def _film_from_reply(reply: dict[str, Any]) -> bool:
+    """The optional ``film`` (additive in v1: older replies have none, and a film)."""
+    film = reply.get("film", True)
+    if type(film) is not bool:
+        raise ValueError(f"film must be a bool, got {film!r:.64}")
+    return film
 
 
 @dataclass(frozen=True, eq=False)

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from membrane_client.coordinates import Extent
 from membrane_client.frame import Frame, SceneInfo
 from membrane_models.live import LiveEngine, LiveError
 from membrane_models.problems import MembraneForced, StringForced
@@ -160,7 +161,7 @@ class ServedScene:
 
     def _describe(self) -> dict[str, Any]:
         scene, placement = self.scene, self.scene.placement
-        fields = SceneInfo(
+        fields: dict[str, Any] = SceneInfo(
             name=scene.name,
             description=scene.description,
             points=self.evaluator.points,
@@ -180,11 +181,15 @@ class ServedScene:
             model=self.source.summary(),
             units=SI_UNITS if scene.tissue is not None else UNITS,
             live={} if self.live is None else live_description(self.live, self._step_units()),
+            # Said only where they say something: a film scene's describe stays protocol v1's.
+            declared_extent=None if scene.film else self._extent(),
+            film=scene.film,
         ).to_reply_fields()
-        if scene.film:
-            return fields  # a film scene's describe is protocol v1's, unchanged
+        return fields
+
+    def _extent(self) -> Extent:
         lower, upper = zip(*self.source.spatial_bounds, strict=True)
-        return {**fields, "film": False, "extent": {"lower": list(lower), "upper": list(upper)}}
+        return Extent.of_bounds(np.array(lower), np.array(upper))
 
     def _step_units(self) -> dict[str, str] | None:
         return None if self.scene.tissue is None else SI_STEP_UNITS
