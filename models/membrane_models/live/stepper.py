@@ -301,11 +301,10 @@ class ModalStepper(Generic[FootprintT]):
 
     def domain_text(self) -> str:
         """The domain's extent in words (the basis's, else the unit interval or square)."""
-        extent = self.basis.describe().get("lower"), self.basis.describe().get("upper")
-        if extent[0] is None or extent[1] is None:
+        described = self.basis.describe()
+        lower, upper = described.get("lower"), described.get("upper")
+        if not (isinstance(lower, list) and isinstance(upper, list)):
             return " x ".join(["[0, 1]"] * self._dims) + " (problem units)"
-        lower, upper = extent
-        assert isinstance(lower, list) and isinstance(upper, list)
         return " x ".join(f"[{a:.6g}, {b:.6g}]" for a, b in zip(lower, upper, strict=True)) + " m"
 
     def subject(self) -> dict[str, object]:
