@@ -35,10 +35,20 @@ def add_train(subparsers: argparse._SubParsersAction) -> None:
             "conditions exact by construction) and write OUT/checkpoint.pt and OUT/train.log."
         ),
     )
-    parser.add_argument("problem", help="problem name (string-forced, membrane-forced, ...)")
+    parser.add_argument(
+        "problem",
+        help="problem name (string-forced, membrane-forced, ...) or koopman-string (the Koopman "
+        "latent model, trained on a `membrane data koopman-string` dataset given by --data)",
+    )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument(
-        "--arch", default="spinn", help="spinn (ours) or stmsffn (the published configuration)"
+        "--arch",
+        default="spinn",
+        help="spinn (ours) or stmsffn (the published configuration); for koopman-string: aux "
+        "(frequencies from an auxiliary network, default) or fixed (a fixed spectrum)",
+    )
+    parser.add_argument(
+        "--data", type=Path, help="koopman-string only: the dataset folder (train.npz, ...)"
     )
     parser.add_argument("--iterations", type=int, help="total iterations (default: the recipe's)")
     parser.add_argument(
@@ -80,6 +90,12 @@ def train_command(args: argparse.Namespace) -> str:
 
 
 def _run_train(args: argparse.Namespace) -> int:
+    from membrane_models.commands.koopman import KOOPMAN_MODEL, run_koopman_train
+
+    if args.problem == KOOPMAN_MODEL:
+        return run_koopman_train(args)
+    if args.data is not None:
+        raise UsageError(f"--data is for {KOOPMAN_MODEL} only")
     import torch
 
     from membrane_models.learned.training import recipe, train
@@ -172,11 +188,25 @@ def add_export(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("checkpoint", type=Path, help="checkpoint.pt written by `membrane train`")
     parser.add_argument("--out", type=Path, required=True, help="MODEL.onnx to write")
+    parser.add_argument(
+        "--data",
+        type=Path,
+        help="Koopman checkpoints: the dataset whose test split the manifest's error table is "
+        "measured on (default: the one it was trained from)",
+    )
     parser.set_defaults(handler=_run_export)
 
 
 def _run_export(args: argparse.Namespace) -> int:
+    from membrane_models.commands.koopman import is_koopman_checkpoint, run_koopman_export
     from membrane_models.learned.export import ParityError, export_checkpoint
+
+    if is_koopman_checkpoint(args.checkpoint):
+        try:
+            return run_koopman_export(args)
+        except ParityError as exc:
+            print(f"membrane export: parity check failed: {exc}", file=sys.stderr)
+            return 1
 
     if args.out.suffix != ".onnx" or args.out.name.endswith((".space.onnx", ".time.onnx")):
         raise UsageError(f"--out must be MODEL.onnx, got {args.out}")
@@ -210,12 +240,24 @@ def add_evaluate(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("model", help="zoo name or path to MODEL.onnx / MODEL.json")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     parser.add_argument("--plot", type=Path, metavar="FILE.png", help="predicted | exact | error")
+    parser.add_argument(
+        "--data",
+        type=Path,
+        help="Koopman models: re-measure the error table on this dataset's test split "
+        "(default: print the manifest's)",
+    )
     parser.set_defaults(handler=_run_evaluate)
 
 
 def _run_evaluate(args: argparse.Namespace) -> int:
     from membrane_models.artifacts.evaluate import evaluate_model, plot_comparison
+    from membrane_models.artifacts.koopman_manifest import find_koopman_model
     from membrane_models.artifacts.zoo_index import resolve_model
+    from membrane_models.commands.koopman import run_koopman_evaluate
+
+    koopman = find_koopman_model(args.model)
+    if koopman is not None:
+        return run_koopman_evaluate(args, koopman)
 
     manifest = resolve_model(args.model)
     report = evaluate_model(manifest)
