@@ -61,6 +61,7 @@ def _centre_history(
     return np.array(history)
 
 
+@pytest.mark.slow
 def test_a_suddenly_applied_load_peaks_at_twice_the_static_deflection(
     simply_supported: Patch,
 ) -> None:
@@ -87,6 +88,7 @@ def test_with_the_static_correction_the_fast_modes_do_not_overshoot(
     assert 1.8 < peak < 1.99  # the static share of the modes not stepped stays at 1x
 
 
+@pytest.mark.slow
 def test_a_slow_ramp_reaches_the_static_deflection(simply_supported: Patch) -> None:
     _, modes, tables, static = simply_supported
     period = 2 * math.pi / modes.omega[0]
