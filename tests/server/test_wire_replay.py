@@ -40,7 +40,8 @@ def test_the_masking_would_catch_a_changed_reply() -> None:
 
 
 def test_the_comparison_tells_arithmetic_from_a_changed_reply() -> None:
-    """Its power: last-digit noise passes; a changed number, key order or frame does not."""
+    """Its power: last-digit noise (and noise at rest) passes; a changed number, key order or
+    frame does not."""
     _, reply = recorded()[5]  # a query with a frame
     message = decode(reply)
     assert differences(message, decode(reply)) == []
@@ -51,4 +52,8 @@ def test_the_comparison_tells_arithmetic_from_a_changed_reply() -> None:
     changed = dict(message, z=dict(message["z"], data=frame.tobytes()))
     assert differences(changed, message)
     assert differences(dict(message, t=message["t"] * (1 + 1e-12)), message)
+    at_rest = dict(message, z=dict(message["z"], data=np.full_like(frame, 1e-19).tobytes()))
+    noise = dict(message, z=dict(message["z"], data=np.full_like(frame, 7e-20).tobytes()))
+    moved = dict(message, z=dict(message["z"], data=np.full_like(frame, 1e-9).tobytes()))
+    assert differences(noise, at_rest) == [] and differences(moved, at_rest)
     assert differences(dict(reversed(list(message.items()))), message)

@@ -2,9 +2,11 @@
 
 gmsh is optional (the ``mesh`` extra): it is imported here, on first use, and its absence is a
 ``MissingMesher`` naming the extra. It runs headless (no GUI, no terminal output, no config
-files read) and leaves the process's SIGINT handler alone (``interruptible=False``). gmsh is
-one global state per process, so a call here is not thread-safe; a session the caller opened
-is kept open, one opened here is closed.
+files read) and leaves the process's signal dispositions as it found them: SIGINT by
+``interruptible=False``, SIGPIPE by ``keeping_sigpipe`` (gmsh's initialisation resets it to the
+default, which kills the process at its next write to a closed pipe or socket, where Python
+ignores it and raises ``BrokenPipeError``). gmsh is one global state per process, so a call
+here is not thread-safe; a session the caller opened is kept open, one opened here is closed.
 
 Each function returns plain arrays: points ``(n, 2)`` (m), triangles ``(k, 3)`` and, per
 named physical curve group, its boundary lines ``(j, 2)`` (point indices); ``geometry`` turns
@@ -13,6 +15,9 @@ them into a ``Domain``.
 
 from __future__ import annotations
 
+import ctypes
+import signal
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -22,7 +27,7 @@ from numpy.typing import NDArray
 
 from membrane_models.fem.errors import InvalidGeometry, MissingMesher
 
-__all__ = ["EXTRA_HINT", "mesh_ellipse", "mesh_polygon"]
+__all__ = ["EXTRA_HINT", "keeping_sigpipe", "mesh_ellipse", "mesh_polygon"]
 
 EXTRA_HINT = "pip install 'membrane-tissue[mesh]'"
 FloatArray = NDArray[np.float64]
@@ -118,7 +123,8 @@ def _session() -> Iterator[Any]:
         raise MissingMesher(f"this shape is meshed by gmsh ({error}): {EXTRA_HINT}") from error
     opened = not gmsh.isInitialized()
     if opened:
-        gmsh.initialize(readConfigFiles=False, interruptible=False)
+        with keeping_sigpipe():
+            gmsh.initialize(readConfigFiles=False, interruptible=False)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.option.setNumber("General.Verbosity", 1)
@@ -126,3 +132,26 @@ def _session() -> Iterator[Any]:
     finally:
         if opened:
             gmsh.finalize()
+
+
+@contextmanager
+def keeping_sigpipe() -> Iterator[None]:
+    """SIGPIPE's disposition as it was before the block, whatever native code did inside it."""
+    sigpipe = getattr(signal, "SIGPIPE", None)
+    if sigpipe is None:  # Windows: no such signal
+        yield
+        return
+    before = signal.getsignal(sigpipe)  # Python's record; native code changes the kernel's only
+    try:
+        yield
+    finally:
+        _set_disposition(sigpipe, before)
+
+
+def _set_disposition(signum: int, handler: Any) -> None:
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signum, handler)
+    elif handler in (signal.SIG_IGN, signal.SIG_DFL):  # only the main thread may call signal()
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.signal.restype = ctypes.c_void_p
+        libc.signal(signum, ctypes.c_void_p(int(handler)))

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import ctypes
 import math
+import signal
 import sys
+import threading
 from pathlib import Path
 
 import meshio
@@ -15,6 +18,7 @@ from skfem import Basis, ElementTriArgyris
 from membrane_models import fem
 from membrane_models.fem import forms
 from membrane_models.fem.elements import LocalArgyris
+from membrane_models.fem.gmsh_mesher import keeping_sigpipe
 
 
 def test_a_rectangle_names_its_four_sides() -> None:
@@ -134,10 +138,49 @@ def test_a_msh_file_brings_its_physical_lines_as_parts(tmp_path: Path) -> None:
     assert w[0] == pytest.approx(w[1], rel=1e-10)
 
 
+def _sigpipe_ignored() -> bool:
+    """The kernel's record (Python's own, ``signal.getsignal``, misses what native code sets)."""
+    status = Path("/proc/self/status").read_text()
+    ignored = next(line for line in status.splitlines() if line.startswith("SigIgn:"))
+    return bool(int(ignored.split()[1], 16) >> (signal.SIGPIPE - 1) & 1)
+
+
+def _native_default_sigpipe() -> None:
+    """What gmsh's first initialisation in a process does, in C (Python's record unchanged)."""
+    libc = ctypes.CDLL(None)
+    libc.signal.restype = ctypes.c_void_p
+    libc.signal(signal.SIGPIPE, ctypes.c_void_p(0))  # SIG_DFL
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux's /proc")
+def test_meshing_leaves_sigpipe_ignored_in_this_and_in_another_thread() -> None:
+    """gmsh's first initialisation sets SIGPIPE to its default: the next write to a closed pipe
+    would kill the process (a server, a test run) instead of raising BrokenPipeError."""
+    pytest.importorskip("gmsh")
+    assert _sigpipe_ignored()
+    _native_default_sigpipe()
+    seen = _sigpipe_ignored()
+    signal.signal(signal.SIGPIPE, signal.SIG_IGN)
+    assert not seen, "the kernel's record would not show the defect"
+    for guarded in (_guarded_default_sigpipe, lambda: fem.ellipse(0.3, 0.2, 0.1)):
+        guarded()
+        assert _sigpipe_ignored()
+        worker = threading.Thread(target=guarded)  # only the main thread may call signal()
+        worker.start()
+        worker.join()
+        assert _sigpipe_ignored()
+
+
+def _guarded_default_sigpipe() -> None:
+    with keeping_sigpipe():
+        _native_default_sigpipe()
+
+
 def test_a_gmsh_written_msh4_file_reads_its_cell_sets(tmp_path: Path) -> None:
     gmsh = pytest.importorskip("gmsh")
     path = tmp_path / "plate.msh"
-    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    with keeping_sigpipe():
+        gmsh.initialize(readConfigFiles=False, interruptible=False)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         geo = gmsh.model.geo
