@@ -15,7 +15,14 @@ with Client("tcp://127.0.0.1:5555", timeout=1.0) as client:
 """
 
 from membrane_client.client import DEFAULT_ADDRESS, Client
-from membrane_client.errors import MembraneError, ProtocolError, ServerError, Timeout, UserError
+from membrane_client.errors import (
+    MembraneError,
+    ProtocolError,
+    ServerError,
+    StepLost,
+    Timeout,
+    UserError,
+)
 from membrane_client.frame import Frame, SceneInfo
 from membrane_client.live_limits import InvalidInput, LiveLimits
 from membrane_client.live_schema import Load, Probe, ProbeReading
@@ -39,6 +46,7 @@ __all__ = [
     "SceneInfo",
     "ServerError",
     "Session",
+    "StepLost",
     "Timeout",
     "UserError",
 ]

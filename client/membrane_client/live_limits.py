@@ -83,18 +83,28 @@ class LiveLimits:
         )
 
     def check_probe(
-        self, at: Any, depth: Any, radius: Any, *, max_depth: float | None = None
+        self,
+        at: Any,
+        depth: Any,
+        radius: Any,
+        *,
+        max_depth: float | None = None,
+        min_depth: float | None = None,
     ) -> Probe:
         """A ``Probe`` from untrusted values (JSON numbers: bools and strings are refused).
 
-        ``max_depth`` tightens the depth bound (a caller's own, e.g. a slider's maximum).
+        The depth is signed, within +-``max_depth`` (< 0: the tip above the rest surface);
+        ``max_depth`` and ``min_depth`` tighten that (a caller's own, e.g. a slider's range).
         Raises ``InvalidInput`` naming the first field that is wrong.
         """
-        return self._probe(Probe.checked(at, depth, radius, self.dims), max_depth)
+        probe = Probe.checked(at, depth, radius, self.dims)
+        return self._probe(probe, max_depth, min_depth)
 
-    def probe_from_wire(self, item: Any, *, max_depth: float | None = None) -> Probe:
+    def probe_from_wire(
+        self, item: Any, *, max_depth: float | None = None, min_depth: float | None = None
+    ) -> Probe:
         """``check_probe`` of a probe's wire map (``live_schema.Probe.from_wire``)."""
-        return self._probe(Probe.from_wire(item, self.dims), max_depth)
+        return self._probe(Probe.from_wire(item, self.dims), max_depth, min_depth)
 
     def check_load(self, at: Any, force: Any, radius: Any) -> Load:
         """A ``Load`` from untrusted values; its centre must lie in the unit domain."""
@@ -118,10 +128,12 @@ class LiveLimits:
         """``dims`` finite numbers (the schema's ``at``)."""
         return point(at, self.dims, what)
 
-    def _probe(self, probe: Probe, max_depth: float | None) -> Probe:
+    def _probe(self, probe: Probe, max_depth: float | None, min_depth: float | None) -> Probe:
         limit = self.max_depth if max_depth is None else min(self.max_depth, max_depth)
-        if not 0.0 <= probe.depth <= limit:
-            raise InvalidInput(f"probe depth must be in [0, {limit:.6g}], got {probe.depth:.6g}")
+        lowest = -self.max_depth if min_depth is None else max(-self.max_depth, min_depth)
+        if not lowest <= probe.depth <= limit:
+            bounds = f"[{lowest:.6g}, {limit:.6g}]"
+            raise InvalidInput(f"probe depth must be in {bounds}, got {probe.depth:.6g}")
         self._radius(probe.radius, "probe")
         return probe
 

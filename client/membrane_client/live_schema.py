@@ -110,7 +110,8 @@ class Load(NamedTuple):
 
 
 class Probe(NamedTuple):
-    """A rigid tip whose face is ``depth`` >= 0 below the rest surface, pressing along -axis."""
+    """A rigid tip whose face is ``depth`` below the rest surface (< 0: above it), pressing
+    along -axis."""
 
     at: tuple[float, ...]
     depth: float
@@ -274,9 +275,10 @@ class LiveStepReply:
     probes: tuple[ProbeReading, ...]  # one per probe of the step, in order
     z: np.ndarray | None = None  # the frame, shaped like the lattice; None: a step without one
     token: str | None = None  # read: the token of the step the state follows
+    dtype: str = "<f4"  # the frame's element type on the wire (the request's ``dtype``)
 
     def to_reply_fields(self) -> dict[str, Any]:
-        """The reply's fields, ``z`` as float32 (the server writes them)."""
+        """The reply's fields, ``z`` as ``dtype`` (the server writes them)."""
         fields: dict[str, Any] = {
             "session": self.session,
             "k": self.k,
@@ -285,7 +287,7 @@ class LiveStepReply:
             "probes": [reading.to_wire() for reading in self.probes],
         }
         if self.z is not None:
-            fields["z"] = pack_array(self.z, "<f4")
+            fields["z"] = pack_array(self.z, self.dtype)
         if self.token is not None:
             fields["token"] = self.token
         return fields

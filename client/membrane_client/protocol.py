@@ -137,7 +137,7 @@ class Request:
     session: str | None = None
     scene: str | None = None
     t: float | None = None
-    dtype: str = "<f4"
+    dtype: str = "<f4"  # query, step, read: the frame's element type
     k: int | None = None  # step: the index of the step to take (the session's step count)
     # step: live_schema's Load and Probe maps, as sent: their form is checked against the
     # scene's dimension (live_schema.loads_from_wire), once the step is known to apply
@@ -213,14 +213,15 @@ class Request:
             self._refuse(ErrorCode.BAD_REQUEST, f"'scene' must be a string, got {preview(scene)}")
         if self.op in _LIVE_OPS:
             self._read_live_fields(message)
+        if self.op in _FRAME_OPS:
+            self.dtype = dtype = message.get("dtype", "<f4")
+            if dtype not in ARRAY_DTYPES:
+                kinds = list(ARRAY_DTYPES)
+                self._refuse(
+                    ErrorCode.BAD_REQUEST, f"'dtype' must be one of {kinds}, got {preview(dtype)}"
+                )
         if self.op != Op.QUERY:
             return
-        self.dtype = dtype = message.get("dtype", "<f4")
-        if dtype not in ARRAY_DTYPES:
-            kinds = list(ARRAY_DTYPES)
-            self._refuse(
-                ErrorCode.BAD_REQUEST, f"'dtype' must be one of {kinds}, got {preview(dtype)}"
-            )
         if "t" not in message:
             self._refuse(ErrorCode.BAD_REQUEST, "query needs 't' (seconds, a float)")
         t = message["t"]
@@ -270,6 +271,7 @@ class Request:
 _OPS = frozenset(Op)
 _LIVE_OPS = frozenset((Op.OPEN, Op.STEP, Op.READ, Op.RESET, Op.CLOSE))
 _SCENE_OPS = frozenset((Op.DESCRIBE, Op.QUERY, *_LIVE_OPS))
+_FRAME_OPS = frozenset((Op.QUERY, Op.STEP, Op.READ))  # their replies carry a frame: dtype
 _SESSION = MAX_SESSION_CHARS
 _INITIAL_SHAPES = frozenset(INITIAL_SHAPES)
 

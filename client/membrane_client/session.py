@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from membrane_client.errors import ProtocolError
+from membrane_client.errors import ProtocolError, StepLost, Timeout
 from membrane_client.frame import SceneInfo
 from membrane_client.live_schema import (
     Initial,
@@ -98,24 +98,60 @@ class Session:
         return self
 
     def step(
-        self, loads: Any = (), probes: Any = (), *, frame: bool = True, strict: bool = False
+        self,
+        loads: Any = (),
+        probes: Any = (),
+        *,
+        frame: bool = True,
+        strict: bool = False,
+        dtype: str = "<f4",
     ) -> LiveFrame:
         """Take step ``k`` under ``loads`` and ``probes`` (Load/Probe or their maps).
 
         ``strict``: a load or probe centred outside the scene's domain is refused (a
-        ``ServerError`` naming the domain's extent) instead of touching nothing."""
+        ``ServerError`` naming the domain's extent) instead of touching nothing. ``dtype``:
+        the frame's element type, ``"<f4"`` or ``"<f8"`` (to check a surface beyond float32's
+        6e-8).
+
+        Raises:
+            StepLost: no reply on any retry; ``applied`` says whether the server took the step
+                (``k`` follows the server's count either way, so the next step is in step).
+        """
         wire_loads = [_wire(item) for item in loads]
         wire_probes = [_wire(item) for item in probes]
-        reply = self._request(
-            Op.STEP, k=self.k, loads=wire_loads, probes=wire_probes, frame=frame, strict=strict
-        )
+        fields = dict(loads=wire_loads, probes=wire_probes, frame=frame, strict=strict)
+        try:
+            reply = self._request(Op.STEP, k=self.k, dtype=dtype, **fields)
+        except Timeout as lost:
+            raise self._lost_step(lost) from lost
         result = LiveFrame.from_reply(reply, self.info)
         self.k = result.k
         return result
 
-    def frame(self) -> LiveFrame:
+    def frame(self, dtype: str = "<f4") -> LiveFrame:
         """The session's current frame (a display loop beside a haptic one)."""
-        return LiveFrame.from_reply(self._request(Op.READ), self.info)
+        return LiveFrame.from_reply(self._request(Op.READ, dtype=dtype), self.info)
+
+    def _lost_step(self, lost: Timeout) -> StepLost:
+        """What became of step ``k`` whose every reply was lost. ``read`` gives the server's
+        count and the token of the step its state follows: at k + 1 with this object's token,
+        the step was ours; still at k, nobody took it; at k + 1 with another token, another
+        Session took step k (it is taken once); further on, the server cannot tell."""
+        asked = self.k
+        head = f"step k = {asked}: {lost}; "
+        try:
+            state = LiveStepReply.from_reply(self._request(Op.READ))
+        except Timeout:
+            unknown = "a read got no reply either: whether the server took the step is unknown"
+            return StepLost(head + unknown, None, None)
+        self.k = state.k
+        if state.k == asked + 1 and state.token == self.token:
+            taken = "the server took it (its frame is lost: frame() reads the state)"
+            return StepLost(f"{head}{taken}; next k = {state.k}", True, state.k)
+        if state.k == asked or state.k == asked + 1:
+            return StepLost(f"{head}the server did not take it; next k = {state.k}", False, state.k)
+        moved = "another peer stepped the session since: whether the server took it is unknown"
+        return StepLost(f"{head}{moved}; next k = {state.k}", None, state.k)
 
     def reset(self) -> None:
         """Back to the initial state, step 0."""

@@ -233,6 +233,7 @@ class LiveOps:
             probes=tuple([_reading(r) for r in session.readings]),
             z=None if frame is None else np.reshape(frame, session.served.shape),
             token=token,
+            dtype=request.dtype,
         )
 
 

@@ -53,8 +53,8 @@ def test_a_good_probe_is_a_probe_of_floats() -> None:
         ([0.5, 10**400], 0.01, 0.05, "a huge integer"),
         ([0.5, 0.5], True, 0.05, "probe depth must be a number, got a bool (True)"),
         ([0.5, 0.5], "0.01", 0.05, "probe depth must be a number, got a string '0.01'"),
-        ([0.5, 0.5], -0.01, 0.05, "probe depth must be in [0, 1000]"),
-        ([0.5, 0.5], 1e308, 0.05, "probe depth must be in [0, 1000], got 1e+308"),
+        ([0.5, 0.5], -1e4, 0.05, "probe depth must be in [-1000, 1000]"),
+        ([0.5, 0.5], 1e308, 0.05, "probe depth must be in [-1000, 1000], got 1e+308"),
         ([0.5, 0.5], float("inf"), 0.05, "probe depth must be finite"),
         ([0.5, 0.5], 0.01, 1e-4, "probe radius must be in [0.04, 10], got 0.0001"),
         ([0.5, 0.5], 0.01, 1e-310, "got 1e-310"),
@@ -85,10 +85,17 @@ def test_a_callers_own_depth_bound_is_the_tighter_one() -> None:
     limits = LiveLimits.from_live(LIVE, dims=2)
     assert limits.check_probe([0.5, 0.5], 0.02, 0.05, max_depth=0.02).depth == 0.02
     with pytest.raises(InvalidInput, match=r"in \[0, 0.02\], got 1"):
-        limits.check_probe([0.5, 0.5], 1.0, 0.05, max_depth=0.02)
+        limits.check_probe([0.5, 0.5], 1.0, 0.05, max_depth=0.02, min_depth=0.0)
     tight = LiveLimits.from_live({**LIVE, "max_depth": 0.01}, dims=2)
-    with pytest.raises(InvalidInput, match=r"in \[0, 0.01\]"):
+    with pytest.raises(InvalidInput, match=r"in \[-0.01, 0.01\]"):
         tight.check_probe([0.5, 0.5], 0.015, 0.05, max_depth=0.02)
+
+
+def test_a_depth_is_signed_a_tip_above_the_rest_surface_is_a_probe_too() -> None:
+    limits = LiveLimits.from_live(LIVE, dims=2)
+    assert limits.check_probe([0.5, 0.5], -1e-3, 0.05).depth == -1e-3
+    with pytest.raises(InvalidInput, match=r"in \[0, 1000\], got -0.001"):
+        limits.check_probe([0.5, 0.5], -1e-3, 0.05, min_depth=0.0)  # a caller that only presses
 
 
 def test_a_point_probe_only_on_a_string() -> None:

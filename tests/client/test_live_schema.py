@@ -255,7 +255,7 @@ def test_live_limits_check_a_probes_wire_map_through_the_schema() -> None:
     assert limits.probe_from_wire(GOOD_PROBE) == Probe((0.5, 0.5), 1e-5, 0.05)
     with pytest.raises(InvalidInput, match="probe needs exactly the keys"):
         limits.probe_from_wire({"at": [0.5, 0.5]})
-    with pytest.raises(InvalidInput, match=r"probe depth must be in \[0, 0.001\]"):
+    with pytest.raises(InvalidInput, match=r"probe depth must be in \[-1000, 0.001\]"):
         limits.probe_from_wire({**GOOD_PROBE, "depth": 0.002}, max_depth=1e-3)
     with pytest.raises(InvalidInput, match=r"probe radius must be in \[0.01, 10\]"):
         limits.probe_from_wire({**GOOD_PROBE, "radius": 0.001})

@@ -131,7 +131,7 @@ def test_bad_loads_are_refused_and_change_nothing(membrane_live: ServedScene) ->
         bad_inputs: tuple[dict[str, Any], ...] = (
             {"loads": [{"at": [0.5, 0.5], "force": math.nan, "radius": 0.05}]},
             {"loads": [{"at": [0.5, 0.5], "force": 1.0, "radius": 0.0}]},  # a point, on a membrane
-            {"probes": [{"at": [0.5, 0.5], "depth": -1e-3, "radius": 0.05}]},
+            {"probes": [{"at": [0.5, 0.5], "depth": -2e3, "radius": 0.05}]},
             {"probes": [{"at": [0.5], "depth": 1e-3, "radius": 0.05}]},
             {"loads": [{"at": [0.5, 0.5], "force": 1.0}]},  # no radius
         )

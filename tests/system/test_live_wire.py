@@ -3,6 +3,8 @@ apply twice, and two clients stepping one session cannot both win."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -11,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 import zmq
+from attackers import WatchedServer
 
 from membrane_client import Client, Load, Probe, ServerError, Session
 from membrane_client.protocol import ErrorCode, decode, peek_reply
@@ -121,3 +124,73 @@ def test_two_clients_on_one_session_over_the_wire(start_server: Callable[..., Se
         theirs.k = 1
         assert theirs.step().k == 2  # told the count, it may go on
         mine.close()
+
+
+# A stepper process: the reproduction's client A or B. For each session id read from stdin it
+# joins the session (a new Session, request ids numbered from 1 like every Client's) and steps
+# k = 0 with its own load, printing "ok" or the refusal's code, one line per id.
+_STEPPER = """
+import sys
+from membrane_client import Client, Load, ServerError, Session
+address, force = sys.argv[1], float(sys.argv[2])
+with Client(address, timeout=10.0, retries=0) as client:
+    print("ready", flush=True)
+    for line in sys.stdin:
+        session = Session(client, "membrane-live", session_id=line.strip())
+        try:
+            session.step(loads=[Load((0.5, 0.5), force, 0.05)], frame=False)
+            print("ok", flush=True)
+        except ServerError as refused:
+            print(refused.code, flush=True)
+"""
+RACES, BATCH = 1000, 10
+
+
+@pytest.mark.slow
+def test_two_processes_stepping_one_session_never_both_win() -> None:
+    """The reproduction of two clients on one session id (keyless: an id is a bearer token),
+    1,000 times: A and B, two processes, each step k = 0 at once; exactly one gets ok."""
+    server = WatchedServer(["membrane-live"])
+    steppers = [_stepper(server.address, force) for force in (1e-2, -1e-2)]
+    outcomes: dict[tuple[str, str], int] = {}
+    try:
+        for stepper in steppers:
+            assert _line(stepper) == "ready"
+        with Client(server.address, timeout=10.0) as owner:
+            for _ in range(RACES // BATCH):
+                sessions = [owner.session("membrane-live") for _ in range(BATCH)]
+                ids = "".join(f"{session.id}\n" for session in sessions)
+                for stepper in steppers:
+                    _write(stepper, ids)
+                for _ in sessions:
+                    pair = (_line(steppers[0]), _line(steppers[1]))
+                    outcomes[pair] = outcomes.get(pair, 0) + 1
+                for session in sessions:
+                    session.close()
+    finally:
+        for stepper in steppers:
+            if stepper.stdin is not None:
+                stepper.stdin.close()
+            stepper.wait(timeout=30)
+        server.close()
+    print(f"\n{RACES} races of A and B on one session: {outcomes}")
+    mismatch = ErrorCode.STEP_MISMATCH.value
+    assert set(outcomes) <= {("ok", mismatch), (mismatch, "ok")}, outcomes
+    assert sum(outcomes.values()) == RACES
+    assert server.tracebacks() == []
+
+
+def _stepper(address: str, force: float) -> subprocess.Popen[str]:
+    command = [sys.executable, "-c", _STEPPER, address, str(force)]
+    return subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+
+
+def _write(process: subprocess.Popen[str], text: str) -> None:
+    assert process.stdin is not None
+    process.stdin.write(text)
+    process.stdin.flush()
+
+
+def _line(process: subprocess.Popen[str]) -> str:
+    assert process.stdout is not None
+    return process.stdout.readline().strip()

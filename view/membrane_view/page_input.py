@@ -99,7 +99,7 @@ def parse_page_message(
     if limits is None:
         raise PageInputError(no_press)
     try:
-        probe = limits.probe_from_wire(fields, max_depth=max_depth)
+        probe = limits.probe_from_wire(fields, max_depth=max_depth, min_depth=0.0)  # presses only
     except UserError as exc:
         raise PageInputError(str(exc)) from None
     return PageMessage("press", probe)

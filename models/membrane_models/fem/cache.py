@@ -36,6 +36,7 @@ from membrane_models.fem.interpolation import CentreGrid
 from membrane_models.fem.modal import modes as lowest_modes
 from membrane_models.fem.models import Model
 from membrane_models.fem.tables import FootprintTables, LiveTables, live_tables
+from membrane_models.live.tabulated_basis import frozen
 
 __all__ = ["FORMAT", "TableCache", "cache_directory", "cached_tables", "table_key"]
 
@@ -219,28 +220,24 @@ def _tables(meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> LiveTa
         FootprintTables(
             float(fp["radius"]),
             _grid(fp["grid"]),
-            _frozen(arrays[f"modal_force_{i}"]),
-            _frozen(arrays[f"own_{i}"]) if f"own_{i}" in arrays else None,
-            _frozen(arrays[f"field_{i}"]) if f"field_{i}" in arrays else None,
+            frozen(arrays[f"modal_force_{i}"]),
+            frozen(arrays[f"own_{i}"]) if f"own_{i}" in arrays else None,
+            frozen(arrays[f"field_{i}"]) if f"field_{i}" in arrays else None,
             _grid(fp["cross_grid"]),
             None if fp["own_grid"] is None else _grid(fp["own_grid"]),
         )
         for i, fp in enumerate(meta["footprints"])
     )
-    cross = {(int(i), int(j)): _frozen(arrays[f"cross_{i}_{j}"]) for i, j in meta["cross"]}
+    cross = {(int(i), int(j)): frozen(arrays[f"cross_{i}_{j}"]) for i, j in meta["cross"]}
     return LiveTables(
         (int(meta["lattice"][0]), int(meta["lattice"][1])),
         (float(meta["lower"][0]), float(meta["lower"][1])),
         (float(meta["upper"][0]), float(meta["upper"][1])),
-        _frozen(arrays["omega"]),
-        _frozen(arrays["shapes"]),
-        _frozen(arrays["inside"]),
-        _frozen(arrays["boundary"]),
+        frozen(arrays["omega"]),
+        frozen(arrays["shapes"]),
+        frozen(arrays["inside"]),
+        frozen(arrays["boundary"]),
         footprints,
         cross,
     )
 
-
-def _frozen(array: np.ndarray) -> np.ndarray:
-    array.setflags(write=False)
-    return array

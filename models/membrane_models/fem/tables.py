@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, TypeVar
 
 import numpy as np
 import scipy.linalg
@@ -41,6 +40,7 @@ from membrane_models.fem.interpolation import CentreGrid, prefilter
 from membrane_models.fem.modal import Modes
 from membrane_models.fem.models import Membrane
 from membrane_models.fem.sampling import sampler
+from membrane_models.live.tabulated_basis import frozen
 
 __all__ = [
     "FootprintTables",
@@ -51,7 +51,6 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-_Array = TypeVar("_Array", bound=NDArray[Any])
 # Grid nodes per footprint radius: the modal forces' and fields' grid, and the coarser grid of
 # the static correction's compliance (a table over pairs of centres, so its size goes as the
 # fourth power). Measured on a 40-mode clamped plate, r = 4 mm, 30 centres: the modal forces
@@ -178,10 +177,10 @@ def live_tables(
         (int(lattice[0]), int(lattice[1])),
         lower,
         upper,
-        _frozen(modes.omega.copy()),
-        _frozen(shapes),
-        _frozen(inside),
-        _frozen(boundary_segments(system)),
+        frozen(modes.omega.copy()),
+        frozen(shapes),
+        frozen(inside),
+        frozen(boundary_segments(system)),
         tuple(tables for tables, _, _ in built),
         cross,
     )
@@ -369,7 +368,3 @@ def _inside_mesh(system: System, xy: FloatArray) -> NDArray[np.bool_]:
     extent = float(np.ptp(system.domain.mesh.p, axis=1).max())
     return inside_boundary(xy, boundary_segments(system), 1e-12 * extent)
 
-
-def _frozen(array: _Array) -> _Array:
-    array.setflags(write=False)
-    return array

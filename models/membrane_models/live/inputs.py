@@ -82,7 +82,8 @@ def parse_loads(
 
 
 def parse_probes(probes: Sequence[Probe], dims: int) -> tuple[Probe, ...]:
-    """``probes`` as checked ``Probe`` objects (depth >= 0, radius >= 0; any finite centre).
+    """``probes`` as checked ``Probe`` objects (|depth| <= MAX_DEPTH: < 0 holds the tip above the
+    rest surface; radius >= 0; any finite centre).
 
     Raises:
         InvalidProbe: what is wrong, and with which probe.
@@ -96,13 +97,8 @@ def parse_probes(probes: Sequence[Probe], dims: int) -> tuple[Probe, ...]:
         probe = _typed(item, Probe, f"probe {index}", InvalidProbe)
         at = _point(probe.at, dims, f"probe {index}", InvalidProbe)
         depth = _number(probe.depth, f"probe {index} depth", InvalidProbe)
-        if depth < 0.0:
-            raise InvalidProbe(
-                f"probe {index}: depth must be >= 0 (the tip's face below the rest surface), "
-                f"got {depth:.6g}"
-            )
-        if depth > MAX_DEPTH:
-            reason = f"depth must be at most {MAX_DEPTH:g}, got {depth:.6g}"
+        if not -MAX_DEPTH <= depth <= MAX_DEPTH:
+            reason = f"depth must be in [-{MAX_DEPTH:g}, {MAX_DEPTH:g}], got {depth:.6g}"
             raise InvalidProbe(f"probe {index}: {reason}")
         radius = _radius(probe.radius, f"probe {index}", InvalidProbe)
         out.append(Probe(at, depth, radius))
@@ -114,15 +110,15 @@ def inside_domain(at: tuple[float, ...]) -> bool:
     return all(0.0 <= x <= 1.0 for x in at)
 
 
-def _clean(at: object, dims: int, nonnegative: object, radius: object) -> bool:
-    """A dataclass input already in canonical form: float fields, finite, >= 0 where needed."""
+def _clean(at: object, dims: int, depth: object, radius: object) -> bool:
+    """A dataclass input already in canonical form: float fields, finite, within bounds."""
     return (
         type(at) is tuple
         and len(at) == dims
         and all(type(x) is float and math.isfinite(x) for x in at)
-        and type(nonnegative) is float
+        and type(depth) is float
         and type(radius) is float
-        and 0.0 <= nonnegative <= MAX_DEPTH
+        and -MAX_DEPTH <= depth <= MAX_DEPTH
         and 0.0 <= radius <= MAX_RADIUS
     )
 

@@ -56,7 +56,8 @@ class Load:
 
 @dataclass(frozen=True)
 class Probe:
-    """A rigid tip whose face is ``depth`` >= 0 below the rest surface, pressing along -axis.
+    """A rigid tip whose face is ``depth`` below the rest surface, pressing along -axis: signed,
+    so that a tip held above the rest surface (depth < 0) meets tissue that rings up to it.
 
     Its footprint is a load's Gaussian of radius ``radius`` (> 0 on a membrane). A centre
     outside the domain touches nothing.

@@ -32,7 +32,7 @@ from membrane_models.live.interface import Load, Probe
 from membrane_models.live.modes import ModeSet
 from membrane_models.live.projection import checked_shape
 
-__all__ = ["FootprintModel", "StaticCorrection", "TableFootprint", "TabulatedBasis"]
+__all__ = ["FootprintModel", "StaticCorrection", "TableFootprint", "TabulatedBasis", "frozen"]
 
 FloatArray = NDArray[np.float64]
 _Array = TypeVar("_Array", bound=NDArray[Any])
@@ -112,12 +112,12 @@ class TabulatedBasis:
         if mask.shape != w.shape:
             raise InvalidEngineSettings(f"kept must mark {w.size} modes, got {mask.size}")
         self._lattice = tuple(lattice)
-        self._shapes = _frozen(table * mask)  # modes not stepped carry nothing here
+        self._shapes = frozen(table * mask)  # modes not stepped carry nothing here
         w.setflags(write=False)
-        self._modes = ModeSet((w.size,), w, _frozen(mask))
+        self._modes = ModeSet((w.size,), w, frozen(mask))
         self._footprints = footprints
         self._correction = correction
-        self._inverse = _frozen(np.linalg.pinv(table[:, mask]))  # least squares, kept modes
+        self._inverse = frozen(np.linalg.pinv(table[:, mask]))  # least squares, kept modes
         self._description = dict(description or {"basis": "tabulated"})
         self._held_bytes = int(held_bytes)
 
@@ -214,6 +214,7 @@ class TabulatedBasis:
         return TableFootprint(item.at, item.radius, s)
 
 
-def _frozen(array: _Array) -> _Array:
+def frozen(array: _Array) -> _Array:
+    """``array`` made read-only (tables are shared between sessions), returned for chaining."""
     array.setflags(write=False)
     return array

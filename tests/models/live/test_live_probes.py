@@ -110,13 +110,13 @@ def test_a_huge_depth_is_linear_and_finite() -> None:
 
 
 BAD_PROBES: list[tuple[Any, str]] = [
-    (Probe((0.5, 0.5), -1e-6, 0.05), "depth must be >= 0"),
+    (Probe((0.5, 0.5), -2e3, 0.05), r"depth must be in \[-1000, 1000\], got -2000"),
     (Probe((0.5, 0.5), math.nan, 0.05), "finite"),
     (Probe((0.5, 0.5), math.inf, 0.05), "finite"),
     (Probe((math.inf, 0.5), 0.0, 0.05), "finite"),
     (Probe((0.5, 0.5), 1e-5, 0.0), "logarithmically singular"),
     (Probe((0.5, 0.5), 1e-5, 1e-3), "smallest"),
-    (Probe((0.5, 0.5), 2e3, 0.05), "depth must be at most 1000"),
+    (Probe((0.5, 0.5), 2e3, 0.05), r"depth must be in \[-1000, 1000\], got 2000"),
     (Probe((0.5,), 1e-5, 0.05), "2 coordinates"),
     ("probe", "must be a Probe, got str"),
     ({"at": [0.5, 0.5], "depth": 1e-5, "radius": 0.05}, "must be a Probe, got dict"),  # a wire map
@@ -237,3 +237,31 @@ def test_coincident_probes_share_the_force_of_one() -> None:
     total = sum(r.force for r in two.probes)
     assert total == pytest.approx(one.probes[0].force, rel=1e-9)
     np.testing.assert_allclose(two.state.q, one.state.q, rtol=0, atol=1e-14)
+
+
+def test_a_tip_above_the_rest_surface_meets_tissue_that_rings_up_to_it() -> None:
+    """A signed depth: the tip held 1e-3 above the rest surface, the tissue ringing with
+    amplitude 2e-3; the force is > 0 exactly on the steps whose gap is 0, and there the tissue
+    sits at the tip's face."""
+    engine = ModalEngine(MEMBRANE, 21, 0.002)
+    x = np.linspace(0.0, 1.0, 21)
+    ringing = 2e-3 * np.outer(np.sin(np.pi * x), np.sin(np.pi * x)).ravel()
+    start = engine.start(ringing)
+    assert start.displacement_residual < 1e-6
+    above = Probe((0.5, 0.5), -1e-3, 0.05)
+    free, held = start.state, start.state
+    highest = touching = apart = 0.0
+    for _ in range(250):
+        unheld = engine.step(free, [], [Probe((0.5, 0.5), -1.0, 0.05)], frame=False)  # far above
+        free, highest = unheld.state, max(highest, unheld.probes[0].displacement)
+        reading = (result := engine.step(held, [], [above], frame=False)).probes[0]
+        held = result.state
+        assert (reading.force > 0.0) == (reading.gap == 0.0) == reading.in_contact
+        if reading.in_contact:
+            touching += 1
+            assert reading.displacement == pytest.approx(1e-3, rel=1e-10)
+        else:
+            apart += 1
+            assert reading.gap > 0.0 and reading.displacement < 1e-3
+    assert highest > 1.5e-3  # the free tissue rings well past the tip
+    assert touching > 10 and apart > 10
