@@ -118,7 +118,8 @@ def test_a_step_and_a_read_can_ask_for_float64_frames(scene: ServedScene) -> Non
     for _ in range(2):
         state = engine.step(state, [load]).state
     assert np.array_equal(double.z.ravel(), engine.frame(state))  # every digit of the engine's
-    assert np.array_equal(session.frame(dtype="<f8").z, double.z)
+    read = session.frame(dtype="<f8").z
+    assert read is not None and np.array_equal(read, double.z)
     wire = decode(Request("step", 7, session.id, scene="membrane-live", k=2).to_wire())
     error = decode(Dispatcher([scene]).handle([encode({**wire, "dtype": "<f2"})]).reply)["error"]
     assert error["code"] == "bad_request" and "'dtype' must be one of" in error["message"]
