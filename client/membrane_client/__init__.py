@@ -25,7 +25,7 @@ from membrane_client.errors import (
 )
 from membrane_client.frame import Frame, SceneInfo
 from membrane_client.live_limits import InvalidInput, LiveLimits
-from membrane_client.live_schema import Load, Probe, ProbeReading
+from membrane_client.live_schema import Grasp, GraspReading, Load, Probe, ProbeReading
 from membrane_client.protocol import PROTOCOL_VERSION, ErrorCode
 from membrane_client.session import LiveFrame, Session
 
@@ -35,6 +35,8 @@ __all__ = [
     "Client",
     "ErrorCode",
     "Frame",
+    "Grasp",
+    "GraspReading",
     "InvalidInput",
     "LiveFrame",
     "LiveLimits",

@@ -26,16 +26,20 @@ from membrane_client.codec import pack_array, preview, unpack_array
 from membrane_client.errors import ProtocolError, UserError
 
 __all__ = [
+    "GRASP_KEYS",
     "INITIAL_SHAPES",
     "LOAD_KEYS",
     "MAX_DEPTH",
     "MAX_FORCE",
+    "MAX_GRASPS",
     "MAX_LOADS",
     "MAX_PROBES",
     "MAX_RADIUS",
     "PROBE_KEYS",
     "STEP_UNITS",
     "CloseReply",
+    "Grasp",
+    "GraspReading",
     "Initial",
     "LiveInputError",
     "LiveStepReply",
@@ -44,6 +48,7 @@ __all__ = [
     "Probe",
     "ProbeReading",
     "ResetReply",
+    "grasps_from_wire",
     "loads_from_wire",
     "probes_from_wire",
 ]
@@ -51,6 +56,7 @@ __all__ = [
 # Per step: the contact problem is solved exactly (by enumeration at worst), so counts are small.
 MAX_LOADS = 64
 MAX_PROBES = 8
+MAX_GRASPS = 8
 # Magnitudes in problem units that a server of this version takes (describe's ``live`` says the
 # served engine's own): far past any meaningful input, small enough that no sum of a step
 # overflows float64 nor a frame float32.
@@ -61,6 +67,7 @@ MAX_RADIUS = 10.0
 # The items' maps, key by key in the order ``to_wire`` writes them.
 LOAD_KEYS = ("at", "force", "radius")
 PROBE_KEYS = ("at", "depth", "radius")
+GRASP_KEYS = ("at", "height", "radius")
 # An open's ``initial`` map: shapes on the lattice (also the names of the open reply's residuals).
 INITIAL_SHAPES = ("displacement", "velocity")
 # describe's ``live.units``: what a step's numbers are measured in.
@@ -73,6 +80,7 @@ STEP_UNITS = {
 
 _LOAD_SET = frozenset(LOAD_KEYS)
 _PROBE_SET = frozenset(PROBE_KEYS)
+_GRASP_SET = frozenset(GRASP_KEYS)
 
 
 class LiveInputError(UserError):
@@ -139,6 +147,29 @@ class Probe(NamedTuple):
         )
 
 
+class Grasp(NamedTuple):
+    """A hold keeping the tissue's footprint-weighted displacement at ``height`` (signed, along
+    +axis: > 0 lifts) by a force of either sign."""
+
+    at: tuple[float, ...]
+    height: float
+    radius: float
+
+    def to_wire(self) -> dict[str, Any]:
+        """The grasp's map in a step's ``grasps``."""
+        return {"at": [float(a) for a in self.at], "height": self.height, "radius": self.radius}
+
+    @classmethod
+    def from_wire(cls, item: Any, dims: int, what: str = "grasp") -> Grasp:
+        """A grasp from its map (``what`` names it in messages); raises ``LiveInputError``."""
+        if type(item) is not dict or item.keys() != _GRASP_SET:
+            _refuse_map(item, GRASP_KEYS, what)
+        at, height, radius = item["at"], item["height"], item["radius"]
+        return cls(
+            point(at, dims, what), number(height, what, "height"), number(radius, what, "radius")
+        )
+
+
 def loads_from_wire(items: Sequence[Any], dims: int) -> tuple[Load, ...]:
     """A step's ``loads`` (a list the envelope bounded), each named by its index in messages."""
     names = _LOAD_NAMES if len(items) <= MAX_LOADS else _names("load", len(items))
@@ -149,6 +180,11 @@ def probes_from_wire(items: Sequence[Any], dims: int) -> tuple[Probe, ...]:
     """A step's ``probes`` (a list the envelope bounded), each named by its index in messages."""
     names = _PROBE_NAMES if len(items) <= MAX_PROBES else _names("probe", len(items))
     return tuple([Probe.from_wire(item, dims, names[i]) for i, item in enumerate(items)])
+
+
+def grasps_from_wire(items: Sequence[Any], dims: int) -> tuple[Grasp, ...]:
+    """A step's ``grasps`` (a list the envelope bounded), each named by its index."""
+    return tuple([Grasp.from_wire(item, dims, f"grasp {i}") for i, item in enumerate(items)])
 
 
 def _names(what: str, count: int) -> tuple[str, ...]:
@@ -193,6 +229,32 @@ class ProbeReading(NamedTuple):
         except (KeyError, TypeError) as exc:
             raise ProtocolError(f"malformed probe reading: {exc!r}") from None
         return cls(*numbers, in_contact, outside)
+
+
+class GraspReading(NamedTuple):
+    """What a grasp needed at the end of a step (NaN displacement when ``outside``)."""
+
+    force: float  # applied to the tissue along +axis (> 0 lifts; the hand feels -force)
+    displacement: float  # the footprint-weighted displacement: the grasp's height
+    outside: bool  # the centre is outside the domain: nothing held
+
+    def to_wire(self) -> dict[str, Any]:
+        """The reading's map in a step or read reply's ``grasps``."""
+        return {"force": self.force, "displacement": self.displacement, "outside": self.outside}
+
+    @classmethod
+    def from_wire(cls, item: Any) -> GraspReading:
+        """A reading from its map (unknown keys ignored); raises ProtocolError."""
+        if type(item) is not dict:
+            raise ProtocolError(f"a grasp reading must be a map, got {preview(item)}")
+        try:
+            outside = item["outside"]
+            if type(outside) is not bool:
+                raise TypeError("outside must be a boolean")
+            force, displacement = _reply_number(item["force"]), _reply_number(item["displacement"])
+        except (KeyError, TypeError) as exc:
+            raise ProtocolError(f"malformed grasp reading: {exc!r}") from None
+        return cls(force, displacement, outside)
 
 
 @dataclass(frozen=True, eq=False)
@@ -276,6 +338,7 @@ class LiveStepReply:
     z: np.ndarray | None = None  # the frame, shaped like the lattice; None: a step without one
     token: str | None = None  # read: the token of the step the state follows
     dtype: str = "<f4"  # the frame's element type on the wire (the request's ``dtype``)
+    grasps: tuple[GraspReading, ...] = ()  # one per grasp of the step; the key is left out if none
 
     def to_reply_fields(self) -> dict[str, Any]:
         """The reply's fields, ``z`` as ``dtype`` (the server writes them)."""
@@ -290,6 +353,8 @@ class LiveStepReply:
             fields["z"] = pack_array(self.z, self.dtype)
         if self.token is not None:
             fields["token"] = self.token
+        if self.grasps:
+            fields["grasps"] = [reading.to_wire() for reading in self.grasps]
         return fields
 
     @classmethod
@@ -300,6 +365,9 @@ class LiveStepReply:
             if type(readings) is not list:
                 raise TypeError(f"probes must be a list, got {preview(readings)}")
             token = reply.get("token")
+            held = reply.get("grasps", [])
+            if type(held) is not list:
+                raise TypeError(f"grasps must be a list, got {preview(held)}")
             return cls(
                 session=str(reply.get("session", "")),
                 k=_reply_count(reply["k"]),
@@ -308,6 +376,7 @@ class LiveStepReply:
                 probes=tuple(ProbeReading.from_wire(item) for item in readings),
                 z=unpack_array(reply["z"]) if "z" in reply else None,
                 token=None if token is None else str(token),
+                grasps=tuple(GraspReading.from_wire(item) for item in held),
             )
         except (KeyError, TypeError, ValueError, ProtocolError) as exc:
             raise ProtocolError(f"malformed live reply: {exc!r}") from None

@@ -28,12 +28,13 @@ from membrane_client.codec import (
     unpack_array,
 )
 from membrane_client.errors import ProtocolError, ServerError, UserError
-from membrane_client.live_schema import INITIAL_SHAPES, MAX_LOADS, MAX_PROBES
+from membrane_client.live_schema import INITIAL_SHAPES, MAX_GRASPS, MAX_LOADS, MAX_PROBES
 
 __all__ = [
     "ARRAY_DTYPES",
     "MAX_ARRAY_DIMS",
     "MAX_ERROR_CHARS",
+    "MAX_GRASPS",
     "MAX_LATTICE_POINTS",
     "MAX_LIVE_POINTS",
     "MAX_LOADS",
@@ -143,6 +144,7 @@ class Request:
     # scene's dimension (live_schema.loads_from_wire), once the step is known to apply
     loads: list[Any] | None = None
     probes: list[Any] | None = None
+    grasps: list[Any] | None = None
     frame: bool = True  # step: whether the reply carries the frame
     # step: refuse a load or probe centred outside the domain (instead of "touches nothing")
     strict: bool = False
@@ -152,7 +154,7 @@ class Request:
     def to_wire(self) -> bytes:
         """The request's msgpack bytes; fields left at their defaults are not sent."""
         message: dict[str, Any] = {"v": PROTOCOL_VERSION, "id": self.id, "op": self.op}
-        for key in ("session", "scene", "t", "k", "loads", "probes", "initial", "token"):
+        for key in ("session", "scene", "t", "k", "loads", "probes", "grasps", "initial", "token"):
             value = getattr(self, key)
             if value is not None:
                 message[key] = value
@@ -248,7 +250,7 @@ class Request:
         self.k = k = message.get("k")
         if type(k) is not int or k < 0:
             self._refuse(ErrorCode.BAD_REQUEST, f"step needs 'k' (an int >= 0), got {preview(k)}")
-        for key, most in (("loads", MAX_LOADS), ("probes", MAX_PROBES)):
+        for key, most in (("loads", MAX_LOADS), ("probes", MAX_PROBES), ("grasps", MAX_GRASPS)):
             items = message.get(key, [])
             if type(items) is not list or len(items) > most:
                 self._refuse(ErrorCode.BAD_REQUEST, f"'{key}' must be a list of at most {most}")

@@ -29,6 +29,8 @@ from numpy.typing import ArrayLike
 from membrane_client.errors import ProtocolError, StepLost, Timeout
 from membrane_client.frame import SceneInfo
 from membrane_client.live_schema import (
+    Grasp,
+    GraspReading,
     Initial,
     LiveStepReply,
     Load,
@@ -42,7 +44,7 @@ from membrane_client.protocol import Op
 if TYPE_CHECKING:
     from membrane_client.client import Client
 
-__all__ = ["LiveFrame", "Load", "Probe", "ProbeReading", "Session"]
+__all__ = ["Grasp", "GraspReading", "LiveFrame", "Load", "Probe", "ProbeReading", "Session"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,6 +56,7 @@ class LiveFrame:
     z: np.ndarray | None  # shaped like the lattice; None when the step asked for no frame
     probes: tuple[ProbeReading, ...]
     info: SceneInfo | None = None
+    grasps: tuple[GraspReading, ...] = ()  # one per grasp of the step, in order
 
     def positions(self) -> np.ndarray:
         """(n, 3) world coordinates of every sphere (needs the frame and the description)."""
@@ -65,7 +68,7 @@ class LiveFrame:
     def from_reply(cls, reply: dict[str, Any], info: SceneInfo | None) -> LiveFrame:
         """From a ``step`` or ``read`` reply (``live_schema.LiveStepReply``)."""
         read = LiveStepReply.from_reply(reply)
-        return cls(read.k, read.t, read.z, read.probes, info)
+        return cls(read.k, read.t, read.z, read.probes, info, read.grasps)
 
 
 class Session:
@@ -105,8 +108,10 @@ class Session:
         frame: bool = True,
         strict: bool = False,
         dtype: str = "<f4",
+        grasps: Any = (),
     ) -> LiveFrame:
-        """Take step ``k`` under ``loads`` and ``probes`` (Load/Probe or their maps).
+        """Take step ``k`` under ``loads``, ``probes`` and ``grasps`` (Load/Probe/Grasp or
+        their maps; a grasp holds the tissue at its height, ``LiveFrame.grasps`` the force).
 
         ``strict``: a load or probe centred outside the scene's domain is refused (a
         ``ServerError`` naming the domain's extent) instead of touching nothing. ``dtype``:
@@ -120,6 +125,8 @@ class Session:
         wire_loads = [_wire(item) for item in loads]
         wire_probes = [_wire(item) for item in probes]
         fields = dict(loads=wire_loads, probes=wire_probes, frame=frame, strict=strict)
+        if grasps:
+            fields["grasps"] = [_wire(item) for item in grasps]
         try:
             reply = self._request(Op.STEP, k=self.k, dtype=dtype, **fields)
         except Timeout as lost:
@@ -176,7 +183,7 @@ class Session:
 
 
 def _wire(item: Any) -> Any:
-    return item.to_wire() if isinstance(item, Load | Probe) else item
+    return item.to_wire() if isinstance(item, Load | Probe | Grasp) else item
 
 
 def _array(values: ArrayLike | None) -> np.ndarray | None:

@@ -23,6 +23,7 @@ import numpy as np
 
 from membrane_client import live_schema as schema
 from membrane_client.live_schema import (
+    MAX_GRASPS,
     MAX_LOADS,
     MAX_PROBES,
     STEP_UNITS,
@@ -43,6 +44,8 @@ from membrane_client.protocol import (
 )
 from membrane_models.live import (
     BoundedEngine,
+    Grasp,
+    GraspReading,
     LiveEngine,
     LiveError,
     Load,
@@ -67,8 +70,8 @@ __all__ = [
 
 # Python objects around a session (its record, the table's entry, stored replies' headers).
 _SESSION_OVERHEAD = 4096
-# A live reply beside its frame: the envelope and up to MAX_PROBES readings.
-_REPLY_OVERHEAD = 512 + MAX_PROBES * 160
+# A live reply beside its frame: the envelope and up to MAX_PROBES and MAX_GRASPS readings.
+_REPLY_OVERHEAD = 512 + MAX_PROBES * 160 + MAX_GRASPS * 96
 
 
 def build_scene_engine(scene: Scene, problem: object) -> LiveEngine[Any]:
@@ -92,6 +95,7 @@ def live_description(
         **engine.describe(),
         "max_loads": MAX_LOADS,
         "max_probes": MAX_PROBES,
+        "max_grasps": MAX_GRASPS,
         "session_bytes": session_bytes(engine),
         "units": STEP_UNITS if units is None else units,
     }
@@ -100,8 +104,13 @@ def live_description(
 def session_bytes(engine: LiveEngine[Any]) -> int:
     """The most one session holds: its start and current states (each at most the engine's
     ``state_bytes``), its stored open and step replies."""
-    frame = 4 * math.prod(engine.lattice_shape)
+    frame = 8 * math.prod(engine.lattice_shape)  # a float64 frame (dtype "<f8") at most
     return 2 * engine.state_bytes + 2 * _REPLY_OVERHEAD + frame + _SESSION_OVERHEAD
+
+
+def _grasp_reading(engine_reading: GraspReading) -> schema.GraspReading:
+    r = engine_reading
+    return schema.GraspReading(r.force, r.displacement, r.outside)
 
 
 def _reading(engine_reading: ProbeReading) -> schema.ProbeReading:
@@ -110,17 +119,21 @@ def _reading(engine_reading: ProbeReading) -> schema.ProbeReading:
     return schema.ProbeReading(r.force, r.displacement, r.gap, r.in_contact, r.outside)
 
 
-def engine_inputs(request: Request, dims: int) -> tuple[tuple[Load, ...], tuple[Probe, ...]]:
-    """A step's wire loads and probes, read through the client's live schema (their maps'
-    form), as the engine's own types (whose values the engine checks)."""
+def engine_inputs(
+    request: Request, dims: int
+) -> tuple[tuple[Load, ...], tuple[Probe, ...], tuple[Grasp, ...]]:
+    """A step's wire loads, probes and grasps, read through the client's live schema (their
+    maps' form), as the engine's own types (whose values the engine checks)."""
     try:
         loads = schema.loads_from_wire(request.loads or (), dims)
         probes = schema.probes_from_wire(request.probes or (), dims)
+        grasps = schema.grasps_from_wire(request.grasps or (), dims)
     except LiveInputError as exc:
         raise wire_error(exc) from None
     return (
         tuple([Load(*load) for load in loads]),
         tuple([Probe(*probe) for probe in probes]),
+        tuple([Grasp(*grasp) for grasp in grasps]),
     )
 
 
@@ -177,12 +190,13 @@ class LiveOps:
                 f"this one asked for k = {preview(k)}",
             )
         engine = session.engine
-        _require_inputs(engine, loads=request.loads, probes=request.probes)
-        loads, probes = engine_inputs(request, engine.spatial_dims)
+        _require_inputs(engine, loads=request.loads, probes=request.probes, grasps=request.grasps)
+        loads, probes, grasps = engine_inputs(request, engine.spatial_dims)
         if request.strict:
-            _require_inside(engine, loads, probes)
+            _require_inside(engine, loads, probes, grasps)
+        held = {"grasps": grasps} if grasps else {}  # only engines that take grasps get them
         try:
-            result = engine.step(session.state, loads, probes, frame=request.frame)
+            result = engine.step(session.state, loads, probes, frame=request.frame, **held)
         except LiveError as exc:
             raise wire_error(exc) from None
         session.apply(result)
@@ -231,6 +245,7 @@ class LiveOps:
             t=session.t,
             revision=session.served.revision,
             probes=tuple([_reading(r) for r in session.readings]),
+            grasps=tuple([_grasp_reading(r) for r in session.grasp_readings]),
             z=None if frame is None else np.reshape(frame, session.served.shape),
             token=token,
             dtype=request.dtype,
@@ -250,13 +265,18 @@ def wire_error(exc: LiveError | LiveInputError, what: str = "") -> RequestError:
 
 
 def _require_inside(
-    engine: LiveEngine[Any], loads: tuple[Load, ...], probes: tuple[Probe, ...]
+    engine: LiveEngine[Any],
+    loads: tuple[Load, ...],
+    probes: tuple[Probe, ...],
+    grasps: tuple[Grasp, ...] = (),
 ) -> None:
-    """A ``strict`` step: every load and probe centred in the domain, or a refusal naming it."""
+    """A ``strict`` step: every load, probe and grasp centred in the domain, or a refusal
+    naming it."""
     if not isinstance(engine, BoundedEngine):
         raise RequestError(ErrorCode.BAD_REQUEST, "this scene's engine cannot check 'strict'")
     items = [("load", i, ld.at) for i, ld in enumerate(loads)]
     items += [("probe", i, pr.at) for i, pr in enumerate(probes)]
+    items += [("grasp", i, g.at) for i, g in enumerate(grasps)]
     for kind, index, at in items:
         if not engine.contains(at):
             where = ", ".join(f"{x:.6g}" for x in at)

@@ -27,6 +27,7 @@ from membrane_client.protocol import (
     preview,
 )
 from membrane_models.live import (
+    GraspReading,
     LiveEngine,
     ProbeReading,
     Start,
@@ -87,6 +88,7 @@ class LiveSession:
     k: int = 0  # steps taken (counted here: an engine's state type is its own)
     last_step: Sent | None = None  # the latest step
     readings: tuple[ProbeReading, ...] = ()
+    grasp_readings: tuple[GraspReading, ...] = ()
     last_used: float = field(default=0.0)
 
     @property
@@ -106,9 +108,11 @@ class LiveSession:
 
     def apply(self, result: StepResult[Any]) -> None:
         self.state, self.readings, self.k = result.state, result.probes, self.k + 1
+        self.grasp_readings = result.grasps
 
     def reset(self) -> None:
         self.state, self.readings, self.last_step, self.k = self.start.state, (), None, 0
+        self.grasp_readings = ()
 
 
 class SessionTable:

@@ -13,7 +13,7 @@ import pytest
 
 from membrane_client import live_limits, live_schema, protocol
 from membrane_client.protocol import ErrorCode, decode, encode
-from membrane_models.live import LiveEngine, Load, ModalEngine, Probe, inputs
+from membrane_models.live import Grasp, LiveEngine, Load, ModalEngine, Probe, inputs
 from membrane_server.dispatch import Dispatcher
 from membrane_server.live import engine_inputs
 from membrane_server.served import ServedScene
@@ -34,6 +34,7 @@ def test_every_limit_has_one_definition_and_the_engine_agrees_with_it(
     pairs = {
         "MAX_LOADS": (inputs.MAX_LOADS, live_schema.MAX_LOADS),
         "MAX_PROBES": (inputs.MAX_PROBES, live_schema.MAX_PROBES),
+        "MAX_GRASPS": (inputs.MAX_GRASPS, live_schema.MAX_GRASPS),
         "MAX_FORCE": (inputs.MAX_FORCE, live_schema.MAX_FORCE),
         "MAX_DEPTH": (inputs.MAX_DEPTH, live_schema.MAX_DEPTH),
         "MAX_RADIUS": (inputs.MAX_RADIUS, live_schema.MAX_RADIUS),
@@ -42,15 +43,18 @@ def test_every_limit_has_one_definition_and_the_engine_agrees_with_it(
     # the protocol and the client's bounds are the schema's objects, not copies
     assert protocol.MAX_LOADS is live_schema.MAX_LOADS
     assert protocol.MAX_PROBES is live_schema.MAX_PROBES
+    assert protocol.MAX_GRASPS is live_schema.MAX_GRASPS
     assert live_limits.DEFAULT_MAX_FORCE is live_schema.MAX_FORCE
     assert live_limits.DEFAULT_MAX_DEPTH is live_schema.MAX_DEPTH
     assert live_limits.DEFAULT_MAX_RADIUS is live_schema.MAX_RADIUS
     # and what a served scene describes is the schema's
     live = membrane_live.describe()["live"]
-    described = {key: live[key] for key in ("max_loads", "max_probes", "max_force", "max_depth")}
+    keys = ("max_loads", "max_probes", "max_grasps", "max_force", "max_depth")
+    described = {key: live[key] for key in keys}
     assert described == {
         "max_loads": live_schema.MAX_LOADS,
         "max_probes": live_schema.MAX_PROBES,
+        "max_grasps": live_schema.MAX_GRASPS,
         "max_force": live_schema.MAX_FORCE,
         "max_depth": live_schema.MAX_DEPTH,
     }
@@ -169,8 +173,10 @@ def test_engine_inputs_convert_the_schemas_items_field_by_field() -> None:
         "step", 1, "s", k=0,
         loads=[live_schema.Load((0.1, 0.2), 0.3, 0.4).to_wire()],
         probes=[live_schema.Probe((0.5, 0.6), 0.7, 0.8).to_wire()],
+        grasps=[live_schema.Grasp((0.9, 0.1), -0.2, 0.3).to_wire()],
     )  # fmt: skip
-    loads, probes = engine_inputs(request, 2)
+    loads, probes, grasps = engine_inputs(request, 2)
     assert loads == (Load((0.1, 0.2), 0.3, 0.4),)
     assert probes == (Probe((0.5, 0.6), 0.7, 0.8),)
-    assert engine_inputs(protocol.Request("step", 1, "s", k=0), 1) == ((), ())
+    assert grasps == (Grasp((0.9, 0.1), -0.2, 0.3),)
+    assert engine_inputs(protocol.Request("step", 1, "s", k=0), 1) == ((), (), ())

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from membrane_client import Client, Load, Probe, ServerError
+from membrane_client import Client, Grasp, GraspReading, Load, Probe, ServerError
 from membrane_client.protocol import (
     MAX_REQUEST_BYTES,
     ErrorCode,
@@ -18,6 +18,7 @@ from membrane_client.protocol import (
     decode,
     pack_array,
 )
+from membrane_models.live import Grasp as EngineGrasp
 from membrane_models.live import Load as EngineLoad
 from membrane_models.live import ModalEngine
 from membrane_models.live import Probe as EngineProbe
@@ -272,3 +273,33 @@ def test_a_server_keeps_the_session_table_it_is_given() -> None:
         with pytest.raises(ServerError) as refused:
             client.session()
         assert _code(refused) == ErrorCode.TOO_MANY_SESSIONS
+
+
+def test_a_grasp_on_the_wire_is_the_engines_and_read_repeats_it(rope_live: ServedScene) -> None:
+    """A grasp holds rope-live's x = 0.3 at 1e-3 beside a probe: the reply's readings are the
+    engine's own for the same inputs, digit for digit, and ``read`` gives them again."""
+    grasp, probe = Grasp((0.3,), 1e-3, 0.0), Probe((0.7,), 5e-4, 0.0)
+    engine = rope_live.live
+    assert engine is not None
+    state = engine.start().state
+    with _client(rope_live) as client, client.session("rope-live") as session:
+        for _ in range(3):
+            frame = session.step(probes=[probe], grasps=[grasp])
+            expected = engine.step(
+                state,
+                [],
+                [EngineProbe(*probe)],
+                grasps=[EngineGrasp(*grasp)],  # type: ignore[call-arg]
+            )
+            state = expected.state
+        held = expected.grasps[0]
+        assert frame.grasps == (GraspReading(held.force, held.displacement, False),)
+        assert held.displacement == pytest.approx(1e-3, rel=1e-10) and held.force > 0.0
+        assert frame.probes[0].force == expected.probes[0].force
+        assert session.frame().grasps == frame.grasps
+        plain = session.step(probes=[probe])  # no grasps asked: none in the reply
+        assert plain.grasps == ()
+        with pytest.raises(ServerError, match="grasp 0: height must be in"):
+            session.step(grasps=[{"at": [0.5], "height": 2e3, "radius": 0.0}])
+        with pytest.raises(ServerError, match="'grasps' must be a list of at most 8"):
+            session.step(grasps=[grasp] * 9)

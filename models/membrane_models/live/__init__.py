@@ -10,6 +10,7 @@ measured figures.
 from membrane_models.live.engine import ModalEngine, ModalState
 from membrane_models.live.errors import (
     InvalidEngineSettings,
+    InvalidGrasp,
     InvalidLoad,
     InvalidProbe,
     InvalidShape,
@@ -21,6 +22,8 @@ from membrane_models.live.film import film_frames, film_load
 from membrane_models.live.interface import (
     ENGINE_INPUTS,
     BoundedEngine,
+    Grasp,
+    GraspReading,
     Hold,
     LiveEngine,
     Load,
@@ -33,8 +36,11 @@ from membrane_models.live.interface import (
 __all__ = [
     "ENGINE_INPUTS",
     "BoundedEngine",
+    "Grasp",
+    "GraspReading",
     "Hold",
     "InvalidEngineSettings",
+    "InvalidGrasp",
     "InvalidLoad",
     "InvalidProbe",
     "InvalidShape",

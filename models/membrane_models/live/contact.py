@@ -12,6 +12,11 @@ their cross-compliances: for a positive definite C (a P-matrix) Murty's least-in
 pivoting finds the unique solution in finitely many pivots; for a singular C (two probes on the
 same footprint) every active set is tried, smallest first (at most 2^8 for 8 probes). No penalty
 stiffness anywhere: stable at any stiffness, the constraint-based rendering of SOFA's haptics.
+
+Grasps are bilateral: C F = b exactly on their rows, F of either sign. With E the grasps' rows
+and U the probes', F_E = C_EE^-1 (b_E - C_EU F_U), and F_U solves the probes' problem on the
+Schur complement C_UU - C_UE C_EE^-1 C_EU (positive definite when C is) with b_U - C_UE
+C_EE^-1 b_E: the mixed problem exactly, by the same solver.
 """
 
 from __future__ import annotations
@@ -21,9 +26,9 @@ import itertools
 import numpy as np
 from numpy.typing import NDArray
 
-from membrane_models.live.errors import InvalidProbe
+from membrane_models.live.errors import InvalidGrasp, InvalidProbe
 
-__all__ = ["single_contact", "solve_contact"]
+__all__ = ["single_contact", "solve_contact", "solve_mixed"]
 
 FloatArray = NDArray[np.float64]
 
@@ -50,6 +55,35 @@ def solve_contact(compliance: FloatArray, violation: FloatArray) -> FloatArray:
     except np.linalg.LinAlgError:
         return _enumerate(c, b)
     return _murty(c, b)
+
+
+def solve_mixed(
+    compliance: FloatArray, violation: FloatArray, bilateral: NDArray[np.bool_]
+) -> FloatArray:
+    """``solve_contact`` where the rows ``bilateral`` marks are held exactly (grasps).
+
+    Raises:
+        InvalidGrasp: the grasps cannot be held (one on a clamped point, or two on one point:
+            their compliance block is singular).
+        InvalidProbe: as ``solve_contact``.
+    """
+    c = np.asarray(compliance, dtype=np.float64)
+    b = np.asarray(violation, dtype=np.float64)
+    held, free = np.flatnonzero(bilateral), np.flatnonzero(~bilateral)
+    block = c[np.ix_(held, held)]
+    if np.linalg.matrix_rank(block) < held.size or not np.diag(block).min() > 0.0:
+        raise InvalidGrasp(
+            "these grasps cannot be held: one sits where the tissue cannot move (a clamped "
+            "point), or two hold one point"
+        )
+    coupling = c[np.ix_(free, held)]
+    solve_held = np.linalg.solve(block, np.column_stack([b[held], coupling.T]))
+    force = np.zeros(b.size)
+    if free.size:
+        schur = c[np.ix_(free, free)] - coupling @ solve_held[:, 1:]
+        force[free] = solve_contact(0.5 * (schur + schur.T), b[free] - coupling @ solve_held[:, 0])
+    force[held] = solve_held[:, 0] - solve_held[:, 1:] @ force[free]
+    return force
 
 
 def single_contact(c: float, b: float) -> float:

@@ -11,6 +11,7 @@ from membrane_errors import UserError
 
 __all__ = [
     "InvalidEngineSettings",
+    "InvalidGrasp",
     "InvalidLoad",
     "InvalidProbe",
     "InvalidShape",
@@ -33,6 +34,10 @@ class InvalidLoad(LiveError):
 
 class InvalidProbe(LiveError):
     """A probe ``{at, depth, radius}`` that cannot be applied."""
+
+
+class InvalidGrasp(LiveError):
+    """A grasp ``{at, height, radius}`` that cannot be held."""
 
 
 class InvalidShape(LiveError):

@@ -18,29 +18,32 @@ from typing import TypeVar
 
 import numpy as np
 
-from membrane_models.live.errors import InvalidLoad, InvalidProbe, LiveError
-from membrane_models.live.interface import Load, Probe
+from membrane_models.live.errors import InvalidGrasp, InvalidLoad, InvalidProbe, LiveError
+from membrane_models.live.interface import Grasp, Load, Probe
 
 __all__ = [
     "MAX_DEPTH",
     "MAX_FORCE",
+    "MAX_GRASPS",
     "MAX_LOADS",
     "MAX_PROBES",
     "MAX_RADIUS",
     "inside_domain",
+    "parse_grasps",
     "parse_loads",
     "parse_probes",
 ]
 
 MAX_LOADS = 64
 MAX_PROBES = 8
+MAX_GRASPS = 8
 # Magnitudes in problem units (the domain is 1 long, responses are about 1e-3 per unit force):
 # far past any meaningful input, and small enough that no sum of a step can overflow float64
 # nor a frame float32.
 MAX_FORCE = 1e6
 MAX_DEPTH = 1e3
 MAX_RADIUS = 10.0  # wider, a Gaussian is uniform over the domain to within 1 %
-_Item = TypeVar("_Item", Load, Probe)
+_Item = TypeVar("_Item", Load, Probe, Grasp)
 
 
 def parse_loads(
@@ -108,6 +111,29 @@ def parse_probes(probes: Sequence[Probe], dims: int) -> tuple[Probe, ...]:
 def inside_domain(at: tuple[float, ...]) -> bool:
     """Whether a point lies in the closed unit interval or square."""
     return all(0.0 <= x <= 1.0 for x in at)
+
+
+def parse_grasps(grasps: Sequence[Grasp], dims: int) -> tuple[Grasp, ...]:
+    """``grasps`` as checked ``Grasp`` objects (|height| <= MAX_DEPTH, radius >= 0; any finite
+    centre).
+
+    Raises:
+        InvalidGrasp: what is wrong, and with which grasp.
+    """
+    items = _bounded(grasps, MAX_GRASPS, "grasps", InvalidGrasp)
+    out = []
+    for index, item in enumerate(items):
+        if type(item) is Grasp and _clean(item.at, dims, item.height, item.radius):
+            out.append(item)
+            continue
+        grasp = _typed(item, Grasp, f"grasp {index}", InvalidGrasp)
+        at = _point(grasp.at, dims, f"grasp {index}", InvalidGrasp)
+        height = _number(grasp.height, f"grasp {index} height", InvalidGrasp)
+        if not -MAX_DEPTH <= height <= MAX_DEPTH:
+            reason = f"height must be in [-{MAX_DEPTH:g}, {MAX_DEPTH:g}], got {height:.6g}"
+            raise InvalidGrasp(f"grasp {index}: {reason}")
+        out.append(Grasp(at, height, _radius(grasp.radius, f"grasp {index}", InvalidGrasp)))
+    return tuple(out)
 
 
 def _clean(at: object, dims: int, depth: object, radius: object) -> bool:

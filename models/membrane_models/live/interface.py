@@ -24,6 +24,8 @@ from numpy.typing import ArrayLike, NDArray
 __all__ = [
     "ENGINE_INPUTS",
     "BoundedEngine",
+    "Grasp",
+    "GraspReading",
     "Hold",
     "LiveEngine",
     "Load",
@@ -35,8 +37,8 @@ __all__ = [
 
 FloatArray = NDArray[np.float64]
 Hold = Literal["zoh", "foh"]
-# What a live engine may take: loads and probes per step, initial shapes at open.
-ENGINE_INPUTS = frozenset({"loads", "probes", "initial"})
+# What a live engine may take: loads, probes and grasps per step, initial shapes at open.
+ENGINE_INPUTS = frozenset({"loads", "probes", "grasps", "initial"})
 StateT = TypeVar("StateT")
 
 
@@ -90,6 +92,35 @@ class ProbeReading:
 
 
 @dataclass(frozen=True)
+class Grasp:
+    """A hold on the tissue: its footprint-weighted displacement kept at ``height`` (signed,
+    along +axis: > 0 lifts skin or pulls a rope up) by whatever force that takes, of either
+    sign. Its footprint is a probe's; a centre outside the domain holds nothing.
+    """
+
+    at: tuple[float, ...]
+    height: float
+    radius: float
+
+
+@dataclass(frozen=True)
+class GraspReading:
+    """What a grasp needed at the end of a step.
+
+    Attributes:
+        force: the force it applies to the tissue, along +axis (> 0 lifts; the hand feels -F).
+        displacement: z-bar, the footprint-weighted displacement: the grasp's height.
+        compliance: c, the one-step compliance under it (displacement per unit force).
+        outside: the centre is outside the domain: nothing held, the rest NaN.
+    """
+
+    force: float
+    displacement: float
+    compliance: float
+    outside: bool = False
+
+
+@dataclass(frozen=True)
 class StepResult(Generic[StateT]):
     """One step's answer.
 
@@ -99,12 +130,14 @@ class StepResult(Generic[StateT]):
         probes: one reading per probe, in the order given.
         work: work done on the kept modes by loads and probes over the step (zero-order hold;
             None under first-order hold).
+        grasps: one reading per grasp, in the order given (engines without grasps: none).
     """
 
     state: StateT
     frame: FloatArray | None
     probes: tuple[ProbeReading, ...]
     work: float | None
+    grasps: tuple[GraspReading, ...] = ()
 
 
 @dataclass(frozen=True)

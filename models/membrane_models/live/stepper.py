@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from membrane_models.live.basis import FootprintT, ModalBasis
-from membrane_models.live.contact import single_contact, solve_contact
+from membrane_models.live.contact import single_contact, solve_contact, solve_mixed
 from membrane_models.live.cost import StepBudget
 from membrane_models.live.errors import (
     InvalidEngineSettings,
@@ -49,11 +49,14 @@ from membrane_models.live.inputs import (
     MAX_LOADS,
     MAX_PROBES,
     MAX_RADIUS,
+    parse_grasps,
     parse_loads,
     parse_probes,
 )
 from membrane_models.live.interface import (
     ENGINE_INPUTS,
+    Grasp,
+    GraspReading,
     Hold,
     Load,
     Probe,
@@ -213,21 +216,28 @@ class ModalStepper(Generic[FootprintT]):
         *,
         frame: bool = True,
         work: bool = False,
+        grasps: Sequence[Grasp] = (),
     ) -> StepResult[ModalState]:
-        """One step under ``loads`` (held or ramped) and ``probes`` (contact at its end).
+        """One step under ``loads`` (held or ramped), ``probes`` (contact at its end) and
+        ``grasps`` (held exactly at their heights at its end, with the probes' contact).
 
         Args:
             frame: synthesise the frame (a haptic loop asks for one every few steps).
             work: report the work done on the stepped modes (zero-order hold only).
 
         Raises:
-            InvalidLoad, InvalidProbe: bad input; ``state`` is unchanged (it always is).
+            InvalidLoad, InvalidProbe, InvalidGrasp: bad input; ``state`` is unchanged (it
+                always is).
             InvalidState: a state from another engine.
         """
         self._check(state)
         basis = self.basis
         checked_loads = parse_loads(loads, self._dims, basis.contains) if loads else ()
         checked_probes = parse_probes(probes, self._dims) if probes else ()
+        checked_grasps = parse_grasps(grasps, self._dims) if grasps else ()
+        # a grasp's footprint is a probe's; it holds the tissue at its height: a probe's face
+        held = tuple(Probe(g.at, -g.height, g.radius) for g in checked_grasps)
+        checked_probes = (*checked_probes, *held)
         load_prints, probe_prints = basis.footprints(checked_loads, checked_probes, self.budget)
         load_forces = [ld.force for ld in checked_loads]
         tr, q0, v0 = self.transition, state.q, state.v
@@ -244,18 +254,20 @@ class ModalStepper(Generic[FootprintT]):
             q += tr.zoh_q * p1
             v += tr.zoh_v * p1
         readings, contact = self._contact(
-            q, v, checked_probes, probe_prints, load_prints, load_forces
+            q, v, checked_probes, probe_prints, load_prints, load_forces, len(held)
         )
         done = self._work(p1, contact, q, q0) if work and self.hold == "zoh" else None
         applied: list[tuple[Any, float]] = [*zip(load_prints, load_forces, strict=True)]
         for fp, reading in zip(probe_prints, readings, strict=True):
-            if fp is not None and reading.force > 0.0:
+            if fp is not None and reading.force != 0.0:
                 applied.append((fp, -reading.force))
         _require_finite(q, v, readings)
         q.flags.writeable = v.flags.writeable = p1.flags.writeable = False
         index = state.step + 1
         new = ModalState(index, index * self._dt, q, v, p1, tuple(applied), self._owner)
-        return StepResult(new, self.frame(new) if frame else None, readings, done)
+        probed = len(readings) - len(held)
+        grasped = tuple(_grasp_reading(r) for r in readings[probed:])
+        return StepResult(new, self.frame(new) if frame else None, readings[:probed], done, grasped)
 
     def frame(self, state: ModalState) -> FloatArray:
         """Displacements on the lattice (x-major, flattened): stepped modes plus correction."""
@@ -354,14 +366,16 @@ class ModalStepper(Generic[FootprintT]):
         prints: Sequence[FootprintT | None],
         load_prints: Sequence[FootprintT],
         load_forces: Sequence[float],
+        grasps: int = 0,
     ) -> tuple[tuple[ProbeReading, ...], list[tuple[FloatArray, float]]]:
-        """Solve contact, apply it to q and v in place; the readings and (s, F) per contact."""
+        """Solve contact, apply it to q and v in place; the readings and (s, F) per contact.
+        The last ``grasps`` probes are grasps: held exactly, their force of either sign."""
         footprints = [fp for fp in prints if fp is not None]
         if not footprints:
             return tuple(_outside() for _ in probes), []
         basis, tr, scale = self.basis, self.transition, self._scale
         from_loads = basis.loads_residual(load_prints, load_forces)
-        if len(probes) == 1:
+        if len(probes) == 1 and not grasps:
             return self._one_probe(q, v, probes[0], footprints[0], from_loads)
         shapes = [basis.modal_force(fp) for fp in footprints]
         gains = [tr.zoh_q * s for s in shapes]  # the end-of-step response to a unit force
@@ -374,10 +388,14 @@ class ModalStepper(Generic[FootprintT]):
                 value = scale * float(np.vdot(gains[j], shapes[k])) + basis.cross(fp, footprints[k])
                 compliance[j, k] = compliance[k, j] = value
         depths = np.array([pr.depth for pr, fp in zip(probes, prints, strict=True) if fp])
-        forces = solve_contact(compliance, free + depths)
+        held = np.array([j >= len(probes) - grasps for j, fp in enumerate(prints) if fp])
+        if held.any():
+            forces = solve_mixed(compliance, free + depths, held)
+        else:
+            forces = solve_contact(compliance, free + depths)
         contact = []
         for s, gain, force in zip(shapes, gains, forces, strict=True):
-            if force > 0.0:
+            if force != 0.0:
                 q -= force * gain
                 v -= (force * tr.zoh_v) * s
                 contact.append((s, float(force)))
@@ -465,6 +483,12 @@ def _reading(force: float, displacement: float, depth: float, compliance: float)
 
 def _outside() -> ProbeReading:
     return ProbeReading(0.0, _NAN, _NAN, _NAN, False, True)
+
+
+def _grasp_reading(held: ProbeReading) -> GraspReading:
+    """A grasp's reading from its probe-like row: its force along +axis (a probe's pushes
+    along -axis)."""
+    return GraspReading(-held.force + 0.0, held.displacement, held.compliance, held.outside)
 
 
 def _masked(tr: Transition, kept: NDArray[np.bool_]) -> Transition:

@@ -17,7 +17,7 @@ from membrane_models import fem
 from membrane_models.fem.cache import TableCache, cached_tables
 from membrane_models.fem.live_basis import fem_basis
 from membrane_models.fem.tables import LiveTables, footprint_loads, live_tables
-from membrane_models.live import InvalidLoad, InvalidProbe, Load, Probe
+from membrane_models.live import Grasp, InvalidLoad, InvalidProbe, Load, Probe
 from membrane_models.live.stepper import ModalStepper
 
 SIDE = 0.05
@@ -168,3 +168,22 @@ def test_inside_the_boundary_of_a_disk_and_of_a_polygon_with_a_hole() -> None:
              [[0.6, 0.6], [0.4, 0.6]], [[0.4, 0.6], [0.4, 0.4]]]  # fmt: skip
     points = np.array([[0.2, 0.5], [0.5, 0.5], [0.5, 0.4], [1.2, 0.5]])
     assert inside_boundary(points, np.array(holed), 1e-12).tolist() == [True, False, True, False]
+
+
+def test_a_grasp_lifting_the_patch_needs_its_static_stiffness_upward(plate: Plate) -> None:
+    """The probe's check with the sign turned: a grasp holding the footprint 0.1 mm up needs
+    +stiffness x height, beside a probe held clear above it (force 0)."""
+    system, _, tables = plate
+    engine = ModalStepper(fem_basis(tables), 2e-4, damping=0.9)
+    at, height = (0.025, 0.025), 1e-4
+    clear = Probe((0.01, 0.01), -1e-3, RADIUS)  # 1 mm above the rest surface
+    state = engine.start().state
+    for _ in range(400):
+        result = engine.step(state, [], [clear], frame=False, grasps=[Grasp(at, height, RADIUS)])
+        state = result.state
+    loads, responses = _static(system, RADIUS, np.array([at]))
+    stiffness = 1.0 / float(loads[:, 0] @ responses[:, 0])
+    held = result.grasps[0]
+    assert held.displacement == pytest.approx(height, rel=1e-9)
+    assert held.force == pytest.approx(stiffness * height, rel=1e-3)
+    assert result.probes[0].force == 0.0
