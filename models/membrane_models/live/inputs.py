@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import numbers
 from collections.abc import Callable, Mapping, Sequence
-from typing import TypeVar
+from typing import TypeVar, cast
 
 import numpy as np
 
@@ -44,6 +44,7 @@ MAX_FORCE = 1e6
 MAX_DEPTH = 1e3
 MAX_RADIUS = 10.0  # wider, a Gaussian is uniform over the domain to within 1 %
 _Item = TypeVar("_Item", Load, Probe, Grasp)
+_Held = TypeVar("_Held", Probe, Grasp)
 
 
 def parse_loads(
@@ -91,21 +92,7 @@ def parse_probes(probes: Sequence[Probe], dims: int) -> tuple[Probe, ...]:
     Raises:
         InvalidProbe: what is wrong, and with which probe.
     """
-    items = _bounded(probes, MAX_PROBES, "probes", InvalidProbe)
-    out = []
-    for index, item in enumerate(items):
-        if type(item) is Probe and _clean(item.at, dims, item.depth, item.radius):
-            out.append(item)  # the haptic loop's case: nothing to convert
-            continue
-        probe = _typed(item, Probe, f"probe {index}", InvalidProbe)
-        at = _point(probe.at, dims, f"probe {index}", InvalidProbe)
-        depth = _number(probe.depth, f"probe {index} depth", InvalidProbe)
-        if not -MAX_DEPTH <= depth <= MAX_DEPTH:
-            reason = f"depth must be in [-{MAX_DEPTH:g}, {MAX_DEPTH:g}], got {depth:.6g}"
-            raise InvalidProbe(f"probe {index}: {reason}")
-        radius = _radius(probe.radius, f"probe {index}", InvalidProbe)
-        out.append(Probe(at, depth, radius))
-    return tuple(out)
+    return _parse_held(probes, Probe, "depth", dims, MAX_PROBES, InvalidProbe)
 
 
 def inside_domain(at: tuple[float, ...]) -> bool:
@@ -120,19 +107,33 @@ def parse_grasps(grasps: Sequence[Grasp], dims: int) -> tuple[Grasp, ...]:
     Raises:
         InvalidGrasp: what is wrong, and with which grasp.
     """
-    items = _bounded(grasps, MAX_GRASPS, "grasps", InvalidGrasp)
+    return _parse_held(grasps, Grasp, "height", dims, MAX_GRASPS, InvalidGrasp)
+
+
+def _parse_held(
+    items: Sequence[_Held],
+    kind: type[_Held],
+    field: str,
+    dims: int,
+    limit: int,
+    error: type[LiveError],
+) -> tuple[_Held, ...]:
+    """Probes and grasps alike: ``(at, field, radius)``, ``field`` a signed position along the
+    axis within +-MAX_DEPTH, each named "<kind> <index>" in messages."""
+    noun = kind.__name__.lower()
     out = []
-    for index, item in enumerate(items):
-        if type(item) is Grasp and _clean(item.at, dims, item.height, item.radius):
-            out.append(item)
+    for index, item in enumerate(_bounded(items, limit, f"{noun}s", error)):
+        if type(item) is kind and _clean(item.at, dims, getattr(item, field), item.radius):
+            out.append(cast(_Held, item))  # the haptic loop's case: nothing to convert
             continue
-        grasp = _typed(item, Grasp, f"grasp {index}", InvalidGrasp)
-        at = _point(grasp.at, dims, f"grasp {index}", InvalidGrasp)
-        height = _number(grasp.height, f"grasp {index} height", InvalidGrasp)
-        if not -MAX_DEPTH <= height <= MAX_DEPTH:
-            reason = f"height must be in [-{MAX_DEPTH:g}, {MAX_DEPTH:g}], got {height:.6g}"
-            raise InvalidGrasp(f"grasp {index}: {reason}")
-        out.append(Grasp(at, height, _radius(grasp.radius, f"grasp {index}", InvalidGrasp)))
+        what = f"{noun} {index}"
+        held = _typed(item, kind, what, error)
+        at = _point(held.at, dims, what, error)
+        value = _number(getattr(held, field), f"{what} {field}", error)
+        if not -MAX_DEPTH <= value <= MAX_DEPTH:
+            reason = f"{field} must be in [-{MAX_DEPTH:g}, {MAX_DEPTH:g}], got {value:.6g}"
+            raise error(f"{what}: {reason}")
+        out.append(kind(at, value, _radius(held.radius, what, error)))
     return tuple(out)
 
 
