@@ -41,6 +41,7 @@ from membrane_client.client import DEFAULT_ADDRESS
 from membrane_client.protocol import MAX_REQUEST_BYTES, ErrorCode, encode, error_reply
 from membrane_errors import UserError
 from membrane_server.dispatch import Answer, Dispatcher
+from membrane_server.heap import keep_temporaries_in_heap
 from membrane_server.reloading import SceneBuilder, describe_changes
 from membrane_server.scene import Scene, load_scene
 from membrane_server.served import ServedScene
@@ -163,6 +164,7 @@ class Server:
         self._reload = threading.Event()
         self._thread: threading.Thread | None = None
         self._memory = MemoryRelease()
+        keep_temporaries_in_heap()  # the trims above hand back what the heap then keeps
         self._curve = bool(self._socket_options.get(zmq.CURVE_SERVER))
         self._monitor: zmq.Socket[bytes] | None = None
         self._send_queue: int | None = None  # the send high-water mark in force, once bound

@@ -7,9 +7,10 @@ from fractions import Fraction
 
 import numpy as np
 import pytest
+import scipy.linalg
 from scipy.integrate import solve_ivp
 
-from membrane_models.live.transition import _damped, _undamped, transition
+from membrane_models.live.transition import _damped, _expm, _undamped, transition
 
 
 def test_undamped_closed_forms_match_the_block_exponential() -> None:
@@ -98,3 +99,22 @@ def test_transition_is_stable_at_any_step() -> None:
         for k in range(2):
             matrix = np.array([[tr.qq[k], tr.qv[k] * w[k]], [tr.vq[k] / w[k], tr.vv[k]]])
             assert np.abs(np.linalg.eigvals(matrix)).max() <= bound
+
+
+@pytest.mark.parametrize("zeta", [0.02, 0.5, 1.0, 2.5])
+def test_the_batched_exponential_matches_scipys(zeta: float) -> None:
+    """``_expm`` (numpy, so that it releases the GIL) against scipy.linalg.expm, one matrix at
+    a time, from steps far below a mode's period to far above it: every entry to 1e-11 of
+    max(1, |entry|), and the small ones (the ramp's x^3 / 6 at x = 1e-8) to 1e-11 relative."""
+    x = np.logspace(-8, 3, 120)
+    generator = np.zeros((4, 4))
+    generator[0, 1], generator[1, 0], generator[1, 1] = 1.0, -1.0, -2.0 * zeta
+    generator[1, 2], generator[2, 3] = 1.0, 1.0
+    matrices = x[:, None, None] * generator
+    mine = _expm(matrices)
+    theirs = np.stack([scipy.linalg.expm(m) for m in matrices])
+    assert np.max(np.abs(mine - theirs) / np.maximum(1.0, np.abs(theirs))) < 1e-11
+    small = x < 1.0
+    nonzero = np.abs(theirs[small]) > 1e-300
+    relative = np.abs(mine[small] - theirs[small])[nonzero] / np.abs(theirs[small])[nonzero]
+    assert relative.max() < 1e-11
