@@ -604,7 +604,8 @@ def test_a_memory_ceiling_stops_the_growth_of_a_key_holder(keys: Keys) -> None:
         assert secret is not None
         result = curve_more_flood(host, port, server_public, public, secret, 64 * MiB,
                                   deadline_s=8.0)  # fmt: skip
-        assert result.handshake_ok, result  # an allowed key is let in...
+        # an allowed key is let in...
+        assert result.handshake_ok, (result, server.alive, server.rss() - before, server.log[-5:])
         server.process.wait(5)
         assert not server.alive  # ...and the ceiling, not the host, ends it
         time.sleep(0.2)  # the stderr reader thread

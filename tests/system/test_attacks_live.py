@@ -5,7 +5,8 @@ L8).
 One server per test, in its own process (RSS sampled, a watchdog at 1.5 GiB), hosting the two
 built-in live scenes. A good client steps its own `membrane-live` session at 200 Hz the whole
 time (``live_good_client``): first undisturbed, then during the attack, and the test asserts
-it never failed and missed at most 5 points more of its 5 ms deadlines; then that the server is
+it never failed nor waited 100 ms (its missed 5 ms deadlines are printed, and judged by
+benchmarks/attack_deadlines.py); then that the server is
 alive, its RSS within the stated bound, its log without a traceback, and every refusal a
 structured error of at most 300 characters. Loopback only; every loop is bounded in count and
 time.

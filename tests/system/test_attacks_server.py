@@ -5,9 +5,9 @@ a watchdog at 1.5 GiB) with a good client stepping its own live session at 200 H
 (live_good_client): undisturbed, during the attack, undisturbed again, on the same server.
 Each ends with: the server alive, its RSS growth within the stated bound, no traceback in the
 log (but the one a test asks for), refusals as structured errors, and the good client's figures
-compared with its undisturbed runs (no failure; deadline misses at most 5 points more). The
-figures are printed (docs/ROBUSTNESS.md, "Attacks", rows S1-S5, quotes them). Loopback only;
-every loop is bounded.
+compared with its undisturbed runs (no failure, no stall; its deadline misses are judged by
+benchmarks/attack_deadlines.py). The figures are printed (docs/ROBUSTNESS.md, "Attacks", rows
+S1-S5, quotes them). Loopback only; every loop is bounded.
 """
 
 from __future__ import annotations
@@ -80,8 +80,8 @@ def _survived(
     tracebacks: int = 0,
 ) -> None:
     """Alive, a good request answered, RSS growth since listening within ``bound``,
-    ``tracebacks`` tracebacks in the log, and the good client as good as undisturbed (before
-    and after)."""
+    ``tracebacks`` tracebacks in the log, and the good client never failed nor stalled (its
+    deadlines beside those undisturbed, before and after: ``check_against_undisturbed``)."""
     during = good.begin("undisturbed after")
     time.sleep(UNDISTURBED_S)
     after = good.stop()
