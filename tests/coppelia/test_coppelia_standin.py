@@ -101,8 +101,10 @@ def test_stepping_handshake_advances_time_by_dt(standin: CoppeliaStandin) -> Non
             sim.step()
         assert sim.getSimulationTime() == pytest.approx(0.05, abs=1e-15)
         assert sim.getSimulationState() == sim.simulation_advancing_running
-        # Running, each step takes at least two waits (the pass must end in between).
-        assert standin.protocol.snapshot()[remote.uuid].waits - waits >= 2 * 5
+        # Running, each step waits for its pass to end: one wait at least, and one more for each
+        # _*executed*_ that arrives within the pass's 2 ms window (on a loaded machine the
+        # client's round trip alone can take longer, and the pass ends after a single wait).
+        assert standin.protocol.snapshot()[remote.uuid].waits - waits >= 5
         assert standin.scene.calls["sim.step"] == 6
         sim.stopSimulation()
         assert standin.stepping_levels() == {remote.uuid: 0}  # reset by the stop, at once

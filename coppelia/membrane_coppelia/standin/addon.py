@@ -18,7 +18,8 @@ was read), because that is where a simulator gets held or released:
   message of the pass). While the simulation runs, a pass does not end while any client in
   stepping mode (``sim.setStepping(True)``, per client) has not asked for the next step.
 - ``sim.step()`` answers ``_*wait*_``, and again to each ``_*executed*_``, until the pass has
-  ended: at least two waits per step while running (as many as fit in the window), one while
+  ended: while running, one wait and one more for each ``_*executed*_`` that arrives within the
+  pass's window (usually two or more; one when the client answers later than that); one while
   stopped.
 - ``sim.stopSimulation`` resets every client's stepping; the simulation then stops over several
   passes (:class:`~membrane_coppelia.standin.scene.FakeScene`).
