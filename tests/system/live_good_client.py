@@ -35,7 +35,6 @@ import time
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
 
 import pytest
 from reporting import print_past_capture
@@ -96,29 +95,47 @@ class LiveRun:
         )
 
 
-class _SteppingLoop:
-    """In the child: a session stepped every ``period`` seconds in a thread until ``stop``.
+@dataclass(frozen=True)
+class LoopSettings:
+    """What the loop steps against, and how (the child gets it as JSON on its command line).
 
     Args:
         address: The server.
         scene: A live scene the server hosts.
+        period: Seconds per slot.
+        frame_every: Ask for a frame every this many steps.
         timeout: Per-request timeout; a step unanswered after one re-send is a failure.
         socket_options: For the client's sockets (CurveZMQ keys).
     """
 
-    def __init__(
-        self,
-        address: str,
-        scene: str = GOOD_LIVE_SCENE,
-        *,
-        period: float = PERIOD_S,
-        frame_every: int = FRAME_EVERY,
-        timeout: float = 1.0,
-        socket_options: Mapping[int, int | bytes] | None = None,
-    ) -> None:
-        self.address, self.scene, self.period = address, scene, period
-        self.frame_every, self.timeout = frame_every, timeout
-        self.socket_options = dict(socket_options or {})
+    address: str
+    scene: str = GOOD_LIVE_SCENE
+    period: float = PERIOD_S
+    frame_every: int = FRAME_EVERY
+    timeout: float = 1.0
+    socket_options: Mapping[int, int | bytes] = field(default_factory=dict)
+
+    def to_json(self) -> str:
+        options = [
+            [int(k), v.hex() if isinstance(v, bytes) else v, isinstance(v, bytes)]
+            for k, v in self.socket_options.items()
+        ]
+        return json.dumps({**asdict(self), "socket_options": options})
+
+    @classmethod
+    def from_json(cls, text: str) -> LoopSettings:
+        fields = json.loads(text)
+        options = {k: bytes.fromhex(v) if is_bytes else v
+                   for k, v, is_bytes in fields.pop("socket_options")}  # fmt: skip
+        return cls(**fields, socket_options=options)
+
+
+class _SteppingLoop:
+    """In the child: a session stepped every ``settings.period`` seconds in a thread until
+    ``stop``."""
+
+    def __init__(self, settings: LoopSettings) -> None:
+        self.settings = settings
         self.runs: list[LiveRun] = [LiveRun("starting")]
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -152,11 +169,13 @@ class _SteppingLoop:
         return self.current
 
     def _run(self) -> None:
+        given = self.settings
         try:
             client = Client(
-                self.address, timeout=self.timeout, retries=1, socket_options=self.socket_options
-            )
-            with client, client.session(self.scene) as session:
+                given.address, timeout=given.timeout, retries=1,
+                socket_options=dict(given.socket_options),
+            )  # fmt: skip
+            with client, client.session(given.scene) as session:
                 self._opened.set()
                 self._step_forever(session)
         except MembraneError as exc:  # opening or closing failed
@@ -165,21 +184,22 @@ class _SteppingLoop:
             self._opened.set()
 
     def _step_forever(self, session: Session) -> None:
+        period, frame_every = self.settings.period, self.settings.frame_every
         slot_start = time.perf_counter()
         while not self._stop.is_set():
-            deadline = slot_start + self.period
+            deadline = slot_start + period
             k = session.k
             sent = time.perf_counter()
             failure = None
             try:
-                result = session.step(probes=[_PROBE], frame=k % self.frame_every == 0)
+                result = session.step(probes=[_PROBE], frame=k % frame_every == 0)
                 if result.k != k + 1 or not math.isfinite(result.probes[0].force):
                     failure = f"step {k}: answered k {result.k}, force {result.probes[0].force}"
             except MembraneError as exc:
                 failure = f"step {k}: {type(exc).__name__}: {exc}"
             answered = time.perf_counter()
             # Slots that passed while waiting are missed too (no coordinated omission).
-            skipped = max(0, int((answered - deadline) / self.period))
+            skipped = max(0, int((answered - deadline) / period))
             with self._lock:
                 run = self.runs[-1]
                 run.slots += 1 + skipped
@@ -191,21 +211,15 @@ class _SteppingLoop:
                     run.failures.append(failure)
             if failure is not None:
                 _resync(session)
-            slot_start = deadline + skipped * self.period
+            slot_start = deadline + skipped * period
             pause = slot_start - time.perf_counter()
             if pause > 0:
                 time.sleep(pause)
 
 
 class LiveGoodClient:
-    """The stepping loop in a child process, driven phase by phase from the test.
-
-    Args:
-        address: The server.
-        scene: A live scene the server hosts.
-        timeout: Per-request timeout; a step unanswered after one re-send is a failure.
-        socket_options: For the client's sockets (CurveZMQ keys).
-    """
+    """The stepping loop in a child process, driven phase by phase from the test (the
+    arguments are ``LoopSettings``'s)."""
 
     def __init__(
         self,
@@ -217,14 +231,9 @@ class LiveGoodClient:
         timeout: float = 1.0,
         socket_options: Mapping[int, int | bytes] | None = None,
     ) -> None:
-        options = [
-            [int(k), v.hex() if isinstance(v, bytes) else v, isinstance(v, bytes)]
-            for k, v in (socket_options or {}).items()
-        ]
-        self._settings = json.dumps({
-            "address": address, "scene": scene, "period": period, "frame_every": frame_every,
-            "timeout": timeout, "socket_options": options,
-        })  # fmt: skip
+        self.settings = LoopSettings(
+            address, scene, period, frame_every, timeout, dict(socket_options or {})
+        )
         self._process: subprocess.Popen[str] | None = None
         self._lines: queue.Queue[str] = queue.Queue()
         self._last: LiveRun | None = None
@@ -232,7 +241,7 @@ class LiveGoodClient:
     def start(self) -> LiveGoodClient:
         """Start the child, which opens the session and steps (raises when it cannot open)."""
         self._process = subprocess.Popen(
-            [sys.executable, str(Path(__file__).resolve()), self._settings],
+            [sys.executable, str(Path(__file__).resolve()), self.settings.to_json()],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1,
         )  # fmt: skip
         threading.Thread(target=self._read, args=(self._process,), daemon=True).start()
@@ -254,13 +263,14 @@ class LiveGoodClient:
 
     def stop(self) -> LiveRun:
         """Stop stepping and end the child; returns the last phase."""
-        process, self._process = self._process, None
+        process = self._process
         if process is None:
             return self._last or LiveRun("stopped")
         try:
             if process.poll() is None:
-                self._last = LiveRun.from_json(self._command("stop", process))
+                self._last = LiveRun.from_json(self._command("stop"))
         finally:
+            self._process = None
             with contextlib.suppress(OSError):
                 process.stdin.close()  # type: ignore[union-attr]
             try:
@@ -270,8 +280,8 @@ class LiveGoodClient:
                 process.wait()
         return self._last or LiveRun("stopped")
 
-    def _command(self, line: str, process: subprocess.Popen[str] | None = None) -> str:
-        process = process or self._process
+    def _command(self, line: str) -> str:
+        process = self._process
         assert process is not None and process.stdin is not None, "the good client is not running"
         process.stdin.write(line + "\n")
         process.stdin.flush()
@@ -290,11 +300,9 @@ class LiveGoodClient:
         self._lines.put("the good client's process ended")
 
 
-def _serve_parent(settings: dict[str, Any]) -> None:
+def _serve_parent(settings: LoopSettings) -> None:
     """The child's side: start the loop, then answer ``begin <label>`` and ``stop`` lines."""
-    options = {k: bytes.fromhex(v) if is_bytes else v for k, v, is_bytes in settings.pop(
-        "socket_options")}  # fmt: skip
-    loop = _SteppingLoop(**settings, socket_options=options)
+    loop = _SteppingLoop(settings)
     refused = loop.start()
     print(refused or "opened", flush=True)
     if refused:
@@ -340,4 +348,4 @@ def check_against_undisturbed(
 
 
 if __name__ == "__main__":
-    _serve_parent(json.loads(sys.argv[1]))
+    _serve_parent(LoopSettings.from_json(sys.argv[1]))
