@@ -10,15 +10,22 @@ others, the slow ones spending it in page faults (``ndarray.copy`` 13 times slow
 
 Fixing both thresholds keeps blocks up to 32 MiB in the heap and its freed top in place; the
 server hands freed memory back to the system on its own schedule (``server.MemoryRelease``,
-``malloc_trim``), so the heap does not stay at its peak.
+``malloc_trim``, found here too), so the heap does not stay at its peak.
 """
 
 from __future__ import annotations
 
 import ctypes
 import logging
+from collections.abc import Callable
+from typing import Any
 
-__all__ = ["MMAP_THRESHOLD_BYTES", "TRIM_THRESHOLD_BYTES", "keep_temporaries_in_heap"]
+__all__ = [
+    "MMAP_THRESHOLD_BYTES",
+    "TRIM_THRESHOLD_BYTES",
+    "keep_temporaries_in_heap",
+    "malloc_trim_function",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -34,9 +41,8 @@ _M_MMAP_THRESHOLD = -3
 def keep_temporaries_in_heap() -> bool:
     """Set glibc's mmap and trim thresholds for this process; False where the C library has no
     ``mallopt`` (musl, macOS) or refused them, which costs only speed."""
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):
+    mallopt = _libc_function("mallopt")
+    if mallopt is None:
         return False
     mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
     done = bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
@@ -44,3 +50,18 @@ def keep_temporaries_in_heap() -> bool:
     if not done:
         logger.debug("mallopt refused the heap thresholds: large temporaries stay on mmap")
     return done
+
+
+def malloc_trim_function() -> Callable[[int], int] | None:
+    """glibc's ``malloc_trim`` (hands the heap's free pages back), or None where the C library
+    has none (musl, macOS)."""
+    trim: Callable[[int], int] | None = _libc_function("malloc_trim")
+    return trim
+
+
+def _libc_function(name: str) -> Any:
+    """A function of this process's C library, or None where it has none by that name."""
+    try:
+        return getattr(ctypes.CDLL(None), name)
+    except (OSError, AttributeError):
+        return None

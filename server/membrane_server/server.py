@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import ctypes
 import logging
 import math
 import os
@@ -41,7 +40,7 @@ from membrane_client.client import DEFAULT_ADDRESS
 from membrane_client.protocol import MAX_REQUEST_BYTES, ErrorCode, encode, error_reply
 from membrane_errors import UserError
 from membrane_server.dispatch import Answer, Dispatcher
-from membrane_server.heap import keep_temporaries_in_heap
+from membrane_server.heap import keep_temporaries_in_heap, malloc_trim_function
 from membrane_server.reloading import SceneBuilder, describe_changes
 from membrane_server.scene import Scene, load_scene
 from membrane_server.served import ServedScene
@@ -631,7 +630,7 @@ class MemoryRelease:
         self.interval, self.growth, self.growth_interval = interval, growth, growth_interval
         self.idle_interval, self._check_interval = idle_interval, check_interval
         self.max_defer = max_defer
-        self._trim = trim if trim is not None else _malloc_trim()
+        self._trim = trim if trim is not None else malloc_trim_function()
         self._rss = rss if rss is not None else _resident_bytes
         self._armed = False
         self._due_at: float | None = None  # when a trim became due that is still waiting
@@ -700,16 +699,6 @@ class MemoryRelease:
             "last_trim_ms": self.last_trim_s * 1e3,
             "max_trim_ms": self.max_trim_s * 1e3,
         }
-
-
-def _malloc_trim() -> Callable[[int], int] | None:
-    """glibc's ``malloc_trim``, or None where the C library has none (musl, macOS)."""
-    try:
-        libc = ctypes.CDLL(None)
-        trim: Callable[[int], int] = libc.malloc_trim
-    except (OSError, AttributeError):
-        return None
-    return trim
 
 
 _STATM = "/proc/self/statm"

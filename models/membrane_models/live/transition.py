@@ -153,7 +153,7 @@ def _expm(matrices: FloatArray) -> FloatArray:
     for count in np.unique(squarings):
         chosen = squarings == count
         scaled = matrices[chosen] / 2.0 ** int(count)
-        power = np.broadcast_to(identity, scaled.shape).copy()
+        power: FloatArray = np.broadcast_to(identity, scaled.shape)  # read, never written
         for k in range(_TAYLOR_DEGREE, 0, -1):  # Horner: I + M/k (I + M/(k+1) (...))
             power = identity + np.matmul(scaled, power) / k
         for _ in range(int(count)):
