@@ -25,7 +25,15 @@ from membrane_client.errors import (
 )
 from membrane_client.frame import Frame, SceneInfo
 from membrane_client.live_limits import InvalidInput, LiveLimits
-from membrane_client.live_schema import Grasp, GraspReading, Load, Probe, ProbeReading
+from membrane_client.live_schema import (
+    Grasp,
+    GraspReading,
+    Load,
+    Probe,
+    ProbeReading,
+    Tool,
+    ToolReading,
+)
 from membrane_client.protocol import PROTOCOL_VERSION, ErrorCode
 from membrane_client.session import LiveFrame, Session
 
@@ -50,5 +58,7 @@ __all__ = [
     "Session",
     "StepLost",
     "Timeout",
+    "Tool",
+    "ToolReading",
     "UserError",
 ]

@@ -1,6 +1,6 @@
-"""The live session's wire schema (docs/PROTOCOL.md, "Live sessions"): loads, probes, their
-readings, an open's initial shapes, the replies of open, step, read, reset and close, and the
-per-step limits. Defined once, here, and used by both sides.
+"""The live session's wire schema (docs/PROTOCOL.md, "Live sessions"): loads, probes, grasps,
+rigid tools, their readings, an open's initial shapes, the replies of open, step, read, reset
+and close, and the per-step limits. Defined once, here, and used by both sides.
 
 A client builds items with ``to_wire`` and reads replies with ``from_reply``; the server reads
 items with ``from_wire`` (every check of the map's form: exact keys, numbers that are neither
@@ -35,8 +35,11 @@ __all__ = [
     "MAX_LOADS",
     "MAX_PROBES",
     "MAX_RADIUS",
+    "MAX_TOOLS",
     "PROBE_KEYS",
     "STEP_UNITS",
+    "TOOL_KEYS",
+    "TOOL_KINDS",
     "CloseReply",
     "Grasp",
     "GraspReading",
@@ -48,15 +51,19 @@ __all__ = [
     "Probe",
     "ProbeReading",
     "ResetReply",
+    "Tool",
+    "ToolReading",
     "grasps_from_wire",
     "loads_from_wire",
     "probes_from_wire",
+    "tools_from_wire",
 ]
 
 # Per step: the contact problem is solved exactly (by enumeration at worst), so counts are small.
 MAX_LOADS = 64
 MAX_PROBES = 8
 MAX_GRASPS = 8
+MAX_TOOLS = 4
 # Magnitudes in problem units that a server of this version takes (describe's ``live`` says the
 # served engine's own): far past any meaningful input, small enough that no sum of a step
 # overflows float64 nor a frame float32.
@@ -68,6 +75,10 @@ MAX_RADIUS = 10.0
 LOAD_KEYS = ("at", "force", "radius")
 PROBE_KEYS = ("at", "depth", "radius")
 GRASP_KEYS = ("at", "height", "radius")
+TOOL_KEYS = ("kind", "at", "depth", "radius")
+# A tool's ``kind``: a sphere (a ball tip) or a flat-ended cylinder (a punch), its axis along the
+# displacement axis.
+TOOL_KINDS = ("sphere", "cylinder")
 # An open's ``initial`` map: shapes on the lattice (also the names of the open reply's residuals).
 INITIAL_SHAPES = ("displacement", "velocity")
 # describe's ``live.units``: what a step's numbers are measured in.
@@ -81,6 +92,8 @@ STEP_UNITS = {
 _LOAD_SET = frozenset(LOAD_KEYS)
 _PROBE_SET = frozenset(PROBE_KEYS)
 _GRASP_SET = frozenset(GRASP_KEYS)
+_TOOL_SET = frozenset(TOOL_KEYS)
+_KIND_NAMES = " or ".join(repr(kind) for kind in TOOL_KINDS)
 
 
 class LiveInputError(UserError):
@@ -170,6 +183,34 @@ class Grasp(NamedTuple):
         )
 
 
+class Tool(NamedTuple):
+    """A rigid tool of ``kind`` (``TOOL_KINDS``) and ``radius`` whose lowest point is ``depth``
+    below the rest surface over ``at`` (< 0: above it), pressing along -axis."""
+
+    kind: str  # "sphere" or "cylinder"
+    at: tuple[float, ...]
+    depth: float
+    radius: float  # > 0: the sphere's or the cylinder's radius
+
+    def to_wire(self) -> dict[str, Any]:
+        """The tool's map in a step's ``tools``."""
+        at = [float(a) for a in self.at]
+        return {"kind": self.kind, "at": at, "depth": self.depth, "radius": self.radius}
+
+    @classmethod
+    def from_wire(cls, item: Any, dims: int, what: str = "tool") -> Tool:
+        """A tool from its map (``what`` names it in messages); raises ``LiveInputError``."""
+        if type(item) is not dict or item.keys() != _TOOL_SET:
+            _refuse_map(item, TOOL_KEYS, what)
+        kind, at, depth, radius = item["kind"], item["at"], item["depth"], item["radius"]
+        return cls(
+            _tool_kind(kind, what),
+            point(at, dims, what),
+            number(depth, what, "depth"),
+            number(radius, what, "radius"),
+        )
+
+
 def loads_from_wire(items: Sequence[Any], dims: int) -> tuple[Load, ...]:
     """A step's ``loads`` (a list the envelope bounded), each named by its index in messages."""
     names = _LOAD_NAMES if len(items) <= MAX_LOADS else _names("load", len(items))
@@ -185,6 +226,11 @@ def probes_from_wire(items: Sequence[Any], dims: int) -> tuple[Probe, ...]:
 def grasps_from_wire(items: Sequence[Any], dims: int) -> tuple[Grasp, ...]:
     """A step's ``grasps`` (a list the envelope bounded), each named by its index."""
     return tuple([Grasp.from_wire(item, dims, f"grasp {i}") for i, item in enumerate(items)])
+
+
+def tools_from_wire(items: Sequence[Any], dims: int) -> tuple[Tool, ...]:
+    """A step's ``tools`` (a list the envelope bounded), each named by its index."""
+    return tuple([Tool.from_wire(item, dims, f"tool {i}") for i, item in enumerate(items)])
 
 
 def _names(what: str, count: int) -> tuple[str, ...]:
@@ -255,6 +301,49 @@ class GraspReading(NamedTuple):
         except (KeyError, TypeError) as exc:
             raise ProtocolError(f"malformed grasp reading: {exc!r}") from None
         return cls(force, displacement, outside)
+
+
+class ToolReading(NamedTuple):
+    """What a rigid tool measured at the end of a step (NaN gap and penetration when no lattice
+    point lies under it)."""
+
+    force: float  # total contact force >= 0 (pushes the tissue along -axis, the tool along +axis)
+    centre: tuple[float, ...]  # where it acts: force-weighted (the tool's centre when 0)
+    contacts: int  # lattice points in contact
+    points: int  # lattice points under the tool
+    gap: float  # the least distance from the tool's surface to the tissue (0 in contact)
+    penetration: float  # the most tissue above the tool's surface (0 up to rounding)
+
+    def to_wire(self) -> dict[str, Any]:
+        """The reading's map in a step or read reply's ``tools``."""
+        return {
+            "force": self.force,
+            "centre": [float(c) for c in self.centre],
+            "contacts": self.contacts,
+            "points": self.points,
+            "gap": self.gap,
+            "penetration": self.penetration,
+        }
+
+    @classmethod
+    def from_wire(cls, item: Any) -> ToolReading:
+        """A reading from its map (unknown keys ignored); raises ProtocolError."""
+        if type(item) is not dict:
+            raise ProtocolError(f"a tool reading must be a map, got {preview(item)}")
+        try:
+            centre = item["centre"]
+            if type(centre) is not list:
+                raise TypeError(f"centre must be a list, got {preview(centre)}")
+            return cls(
+                _reply_number(item["force"]),
+                tuple([_reply_number(c) for c in centre]),
+                _reply_count(item["contacts"]),
+                _reply_count(item["points"]),
+                _reply_number(item["gap"]),
+                _reply_number(item["penetration"]),
+            )
+        except (KeyError, TypeError) as exc:
+            raise ProtocolError(f"malformed tool reading: {exc!r}") from None
 
 
 @dataclass(frozen=True, eq=False)
@@ -339,6 +428,7 @@ class LiveStepReply:
     token: str | None = None  # read: the token of the step the state follows
     dtype: str = "<f4"  # the frame's element type on the wire (the request's ``dtype``)
     grasps: tuple[GraspReading, ...] = ()  # one per grasp of the step; the key is left out if none
+    tools: tuple[ToolReading, ...] = ()  # one per tool of the step; the key is left out if none
 
     def to_reply_fields(self) -> dict[str, Any]:
         """The reply's fields, ``z`` as ``dtype`` (the server writes them)."""
@@ -355,6 +445,8 @@ class LiveStepReply:
             fields["token"] = self.token
         if self.grasps:
             fields["grasps"] = [reading.to_wire() for reading in self.grasps]
+        if self.tools:
+            fields["tools"] = [reading.to_wire() for reading in self.tools]
         return fields
 
     @classmethod
@@ -368,6 +460,9 @@ class LiveStepReply:
             held = reply.get("grasps", [])
             if type(held) is not list:
                 raise TypeError(f"grasps must be a list, got {preview(held)}")
+            pressed = reply.get("tools", [])
+            if type(pressed) is not list:
+                raise TypeError(f"tools must be a list, got {preview(pressed)}")
             return cls(
                 session=str(reply.get("session", "")),
                 k=_reply_count(reply["k"]),
@@ -377,6 +472,7 @@ class LiveStepReply:
                 z=unpack_array(reply["z"]) if "z" in reply else None,
                 token=None if token is None else str(token),
                 grasps=tuple(GraspReading.from_wire(item) for item in held),
+                tools=tuple(ToolReading.from_wire(item) for item in pressed),
             )
         except (KeyError, TypeError, ValueError, ProtocolError) as exc:
             raise ProtocolError(f"malformed live reply: {exc!r}") from None
@@ -439,6 +535,15 @@ def point(at: Any, dims: int, what: str) -> tuple[float, ...]:
     got = f"{count} value{'' if count == 1 else 's'}" if count >= 0 else preview(at)
     plural = "s" if dims > 1 else ""
     _refuse(f"{what} at must be {dims} number{plural}, got {got}")
+
+
+def _tool_kind(kind: Any, what: str) -> str:
+    """``kind`` as one of ``TOOL_KINDS``: a string equal to one (so of bounded length), never
+    a bool, a number or a container; messages name the kinds and quote it short."""
+    if type(kind) is str and kind in TOOL_KINDS:
+        return kind
+    got = preview(kind) if type(kind) is str else _kind(kind)
+    _refuse(f"{what} kind must be {_KIND_NAMES}, got {got}")
 
 
 def number(value: Any, what: str, field: str) -> float:

@@ -28,7 +28,13 @@ from membrane_client.codec import (
     unpack_array,
 )
 from membrane_client.errors import ProtocolError, ServerError, UserError
-from membrane_client.live_schema import INITIAL_SHAPES, MAX_GRASPS, MAX_LOADS, MAX_PROBES
+from membrane_client.live_schema import (
+    INITIAL_SHAPES,
+    MAX_GRASPS,
+    MAX_LOADS,
+    MAX_PROBES,
+    MAX_TOOLS,
+)
 
 __all__ = [
     "ARRAY_DTYPES",
@@ -44,6 +50,7 @@ __all__ = [
     "MAX_REQUEST_BYTES",
     "MAX_SESSION_CHARS",
     "MAX_TOKEN_CHARS",
+    "MAX_TOOLS",
     "PROTOCOL_VERSION",
     "Domain",
     "ErrorCode",
@@ -140,13 +147,14 @@ class Request:
     t: float | None = None
     dtype: str = "<f4"  # query, step, read: the frame's element type
     k: int | None = None  # step: the index of the step to take (the session's step count)
-    # step: live_schema's Load and Probe maps, as sent: their form is checked against the
-    # scene's dimension (live_schema.loads_from_wire), once the step is known to apply
+    # step: live_schema's Load, Probe, Grasp and Tool maps, as sent: their form is checked
+    # against the scene's dimension (live_schema.loads_from_wire), once the step is known to apply
     loads: list[Any] | None = None
     probes: list[Any] | None = None
     grasps: list[Any] | None = None
+    tools: list[Any] | None = None
     frame: bool = True  # step: whether the reply carries the frame
-    # step: refuse a load or probe centred outside the domain (instead of "touches nothing")
+    # step: refuse an item centred outside the domain (instead of "touches nothing")
     strict: bool = False
     initial: dict[str, Any] | None = None  # open: {displacement, velocity} arrays
     token: str | None = None  # live ops: the Session object's own token (re-sends carry it)
@@ -154,7 +162,7 @@ class Request:
     def to_wire(self) -> bytes:
         """The request's msgpack bytes; fields left at their defaults are not sent."""
         message: dict[str, Any] = {"v": PROTOCOL_VERSION, "id": self.id, "op": self.op}
-        for key in ("session", "scene", "t", "k", "loads", "probes", "grasps", "initial", "token"):
+        for key in _SENT_FIELDS:
             value = getattr(self, key)
             if value is not None:
                 message[key] = value
@@ -250,7 +258,7 @@ class Request:
         self.k = k = message.get("k")
         if type(k) is not int or k < 0:
             self._refuse(ErrorCode.BAD_REQUEST, f"step needs 'k' (an int >= 0), got {preview(k)}")
-        for key, most in (("loads", MAX_LOADS), ("probes", MAX_PROBES), ("grasps", MAX_GRASPS)):
+        for key, most in _STEP_ITEMS:
             items = message.get(key, [])
             if type(items) is not list or len(items) > most:
                 self._refuse(ErrorCode.BAD_REQUEST, f"'{key}' must be a list of at most {most}")
@@ -271,6 +279,16 @@ class Request:
 
 
 _OPS = frozenset(Op)
+# The fields ``Request.to_wire`` sends when set, in order; a step's item lists and their bounds.
+_SENT_FIELDS = (
+    "session", "scene", "t", "k", "loads", "probes", "grasps", "tools", "initial", "token"
+)  # fmt: skip
+_STEP_ITEMS = (
+    ("loads", MAX_LOADS),
+    ("probes", MAX_PROBES),
+    ("grasps", MAX_GRASPS),
+    ("tools", MAX_TOOLS),
+)
 _LIVE_OPS = frozenset((Op.OPEN, Op.STEP, Op.READ, Op.RESET, Op.CLOSE))
 _SCENE_OPS = frozenset((Op.DESCRIBE, Op.QUERY, *_LIVE_OPS))
 _FRAME_OPS = frozenset((Op.QUERY, Op.STEP, Op.READ))  # their replies carry a frame: dtype

@@ -38,13 +38,25 @@ from membrane_client.live_schema import (
     Probe,
     ProbeReading,
     ResetReply,
+    Tool,
+    ToolReading,
 )
 from membrane_client.protocol import Op
 
 if TYPE_CHECKING:
     from membrane_client.client import Client
 
-__all__ = ["Grasp", "GraspReading", "LiveFrame", "Load", "Probe", "ProbeReading", "Session"]
+__all__ = [
+    "Grasp",
+    "GraspReading",
+    "LiveFrame",
+    "Load",
+    "Probe",
+    "ProbeReading",
+    "Session",
+    "Tool",
+    "ToolReading",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,6 +69,7 @@ class LiveFrame:
     probes: tuple[ProbeReading, ...]
     info: SceneInfo | None = None
     grasps: tuple[GraspReading, ...] = ()  # one per grasp of the step, in order
+    tools: tuple[ToolReading, ...] = ()  # one per tool of the step, in order
 
     def positions(self) -> np.ndarray:
         """(n, 3) world coordinates of every sphere (needs the frame and the description)."""
@@ -68,7 +81,7 @@ class LiveFrame:
     def from_reply(cls, reply: dict[str, Any], info: SceneInfo | None) -> LiveFrame:
         """From a ``step`` or ``read`` reply (``live_schema.LiveStepReply``)."""
         read = LiveStepReply.from_reply(reply)
-        return cls(read.k, read.t, read.z, read.probes, info, read.grasps)
+        return cls(read.k, read.t, read.z, read.probes, info, read.grasps, read.tools)
 
 
 class Session:
@@ -109,11 +122,14 @@ class Session:
         strict: bool = False,
         dtype: str = "<f4",
         grasps: Any = (),
+        tools: Any = (),
     ) -> LiveFrame:
-        """Take step ``k`` under ``loads``, ``probes`` and ``grasps`` (Load/Probe/Grasp or
-        their maps; a grasp holds the tissue at its height, ``LiveFrame.grasps`` the force).
+        """Take step ``k`` under ``loads``, ``probes``, ``grasps`` and ``tools``
+        (Load/Probe/Grasp/Tool or their maps; a grasp holds the tissue at its height,
+        ``LiveFrame.grasps`` the force; a rigid tool presses its shape in, ``LiveFrame.tools``
+        what it felt).
 
-        ``strict``: a load or probe centred outside the scene's domain is refused (a
+        ``strict``: an item centred outside the scene's domain is refused (a
         ``ServerError`` naming the domain's extent) instead of touching nothing. ``dtype``:
         the frame's element type, ``"<f4"`` or ``"<f8"`` (to check a surface beyond float32's
         6e-8).
@@ -127,6 +143,8 @@ class Session:
         fields = dict(loads=wire_loads, probes=wire_probes, frame=frame, strict=strict)
         if grasps:
             fields["grasps"] = [_wire(item) for item in grasps]
+        if tools:
+            fields["tools"] = [_wire(item) for item in tools]
         try:
             reply = self._request(Op.STEP, k=self.k, dtype=dtype, **fields)
         except Timeout as lost:
@@ -183,7 +201,7 @@ class Session:
 
 
 def _wire(item: Any) -> Any:
-    return item.to_wire() if isinstance(item, Load | Probe | Grasp) else item
+    return item.to_wire() if isinstance(item, Load | Probe | Grasp | Tool) else item
 
 
 def _array(values: ArrayLike | None) -> np.ndarray | None:

@@ -8,9 +8,10 @@ Pirate retry after a lost reply) is recognised by the ``Session`` object's own r
 clients number their requests alike. Anything else is refused with the session's k. The
 sessions themselves, their owners and their bounds are ``sessions``'.
 
-Every wire form is the client's live schema's (``membrane_client.live_schema``): a step's load
-and probe maps are read through it into the engine's own ``Load`` and ``Probe`` (the schema
-checks their form, the engine their values), and every reply is one of its reply forms.
+Every wire form is the client's live schema's (``membrane_client.live_schema``): a step's load,
+probe, grasp and tool maps are read through it into the engine's own ``Load``, ``Probe``,
+``Grasp`` and ``Tool`` (the schema checks their form, the engine their values), and every reply
+is one of its reply forms.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from membrane_client.live_schema import (
     MAX_GRASPS,
     MAX_LOADS,
     MAX_PROBES,
+    MAX_TOOLS,
     STEP_UNITS,
     CloseReply,
     Initial,
@@ -52,6 +54,8 @@ from membrane_models.live import (
     Probe,
     ProbeReading,
     Start,
+    Tool,
+    ToolReading,
 )
 from membrane_server.engines import build_engine
 from membrane_server.sessions import LiveSession, Sent, SessionTable
@@ -70,8 +74,9 @@ __all__ = [
 
 # Python objects around a session (its record, the table's entry, stored replies' headers).
 _SESSION_OVERHEAD = 4096
-# A live reply beside its frame: the envelope and up to MAX_PROBES and MAX_GRASPS readings.
-_REPLY_OVERHEAD = 512 + MAX_PROBES * 160 + MAX_GRASPS * 96
+# A live reply beside its frame: the envelope and up to MAX_PROBES, MAX_GRASPS and MAX_TOOLS
+# readings.
+_REPLY_OVERHEAD = 512 + MAX_PROBES * 160 + MAX_GRASPS * 96 + MAX_TOOLS * 160
 
 
 def build_scene_engine(scene: Scene, problem: object) -> LiveEngine[Any]:
@@ -96,6 +101,7 @@ def live_description(
         "max_loads": MAX_LOADS,
         "max_probes": MAX_PROBES,
         "max_grasps": MAX_GRASPS,
+        "max_tools": MAX_TOOLS,
         "session_bytes": session_bytes(engine),
         "units": STEP_UNITS if units is None else units,
     }
@@ -113,6 +119,13 @@ def _grasp_reading(engine_reading: GraspReading) -> schema.GraspReading:
     return schema.GraspReading(r.force, r.displacement, r.outside)
 
 
+def _tool_reading(engine_reading: ToolReading) -> schema.ToolReading:
+    """An engine's tool reading in the schema's form (plain floats and ints, as msgpack packs)."""
+    r = engine_reading
+    centre = tuple([float(c) for c in r.centre])
+    return schema.ToolReading(r.force, centre, int(r.contacts), int(r.points), r.gap, r.penetration)
+
+
 def _reading(engine_reading: ProbeReading) -> schema.ProbeReading:
     """An engine's probe reading in the schema's form (its wire map is ``to_wire()``)."""
     r = engine_reading
@@ -121,19 +134,21 @@ def _reading(engine_reading: ProbeReading) -> schema.ProbeReading:
 
 def engine_inputs(
     request: Request, dims: int
-) -> tuple[tuple[Load, ...], tuple[Probe, ...], tuple[Grasp, ...]]:
-    """A step's wire loads, probes and grasps, read through the client's live schema (their
-    maps' form), as the engine's own types (whose values the engine checks)."""
+) -> tuple[tuple[Load, ...], tuple[Probe, ...], tuple[Grasp, ...], tuple[Tool, ...]]:
+    """A step's wire loads, probes, grasps and tools, read through the client's live schema
+    (their maps' form), as the engine's own types (whose values the engine checks)."""
     try:
         loads = schema.loads_from_wire(request.loads or (), dims)
         probes = schema.probes_from_wire(request.probes or (), dims)
         grasps = schema.grasps_from_wire(request.grasps or (), dims)
+        tools = schema.tools_from_wire(request.tools or (), dims)
     except LiveInputError as exc:
         raise wire_error(exc) from None
     return (
         tuple([Load(*load) for load in loads]),
         tuple([Probe(*probe) for probe in probes]),
         tuple([Grasp(*grasp) for grasp in grasps]),
+        tuple([Tool(*tool) for tool in tools]),
     )
 
 
@@ -190,11 +205,17 @@ class LiveOps:
                 f"this one asked for k = {preview(k)}",
             )
         engine = session.engine
-        _require_inputs(engine, loads=request.loads, probes=request.probes, grasps=request.grasps)
-        loads, probes, grasps = engine_inputs(request, engine.spatial_dims)
+        _require_inputs(
+            engine,
+            loads=request.loads,
+            probes=request.probes,
+            grasps=request.grasps,
+            tools=request.tools,
+        )
+        loads, probes, grasps, tools = engine_inputs(request, engine.spatial_dims)
         if request.strict:
-            _require_inside(engine, loads, probes, grasps)
-        held = {"grasps": grasps} if grasps else {}  # only engines that take grasps get them
+            _require_inside(engine, loads, probes, grasps, tools)
+        held = _held(grasps, tools)
         try:
             result = engine.step(session.state, loads, probes, frame=request.frame, **held)
         except LiveError as exc:
@@ -246,6 +267,7 @@ class LiveOps:
             revision=session.served.revision,
             probes=tuple([_reading(r) for r in session.readings]),
             grasps=tuple([_grasp_reading(r) for r in session.grasp_readings]),
+            tools=tuple([_tool_reading(r) for r in session.tool_readings]),
             z=None if frame is None else np.reshape(frame, session.served.shape),
             token=token,
             dtype=request.dtype,
@@ -264,19 +286,33 @@ def wire_error(exc: LiveError | LiveInputError, what: str = "") -> RequestError:
     return RequestError(ErrorCode.BAD_REQUEST, f"{what}{exc}")
 
 
+def _held(grasps: tuple[Grasp, ...], tools: tuple[Tool, ...]) -> dict[str, Any]:
+    """A step's keyword inputs beyond loads and probes: only those it has, so that an engine
+    that takes no grasps or no tools (refused before, by ``_require_inputs``) is never given
+    the keyword."""
+    held: dict[str, Any] = {}
+    if grasps:
+        held["grasps"] = grasps
+    if tools:
+        held["tools"] = tools
+    return held
+
+
 def _require_inside(
     engine: LiveEngine[Any],
     loads: tuple[Load, ...],
     probes: tuple[Probe, ...],
     grasps: tuple[Grasp, ...] = (),
+    tools: tuple[Tool, ...] = (),
 ) -> None:
-    """A ``strict`` step: every load, probe and grasp centred in the domain, or a refusal
+    """A ``strict`` step: every load, probe, grasp and tool centred in the domain, or a refusal
     naming it."""
     if not isinstance(engine, BoundedEngine):
         raise RequestError(ErrorCode.BAD_REQUEST, "this scene's engine cannot check 'strict'")
     items = [("load", i, ld.at) for i, ld in enumerate(loads)]
     items += [("probe", i, pr.at) for i, pr in enumerate(probes)]
     items += [("grasp", i, g.at) for i, g in enumerate(grasps)]
+    items += [("tool", i, tl.at) for i, tl in enumerate(tools)]
     for kind, index, at in items:
         if not engine.contains(at):
             where = ", ".join(f"{x:.6g}" for x in at)

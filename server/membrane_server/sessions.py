@@ -32,6 +32,7 @@ from membrane_models.live import (
     ProbeReading,
     Start,
     StepResult,
+    ToolReading,
 )
 
 if TYPE_CHECKING:
@@ -89,6 +90,7 @@ class LiveSession:
     last_step: Sent | None = None  # the latest step
     readings: tuple[ProbeReading, ...] = ()
     grasp_readings: tuple[GraspReading, ...] = ()
+    tool_readings: tuple[ToolReading, ...] = ()
     last_used: float = field(default=0.0)
 
     @property
@@ -108,11 +110,11 @@ class LiveSession:
 
     def apply(self, result: StepResult[Any]) -> None:
         self.state, self.readings, self.k = result.state, result.probes, self.k + 1
-        self.grasp_readings = result.grasps
+        self.grasp_readings, self.tool_readings = result.grasps, result.tools
 
     def reset(self) -> None:
         self.state, self.readings, self.last_step, self.k = self.start.state, (), None, 0
-        self.grasp_readings = ()
+        self.grasp_readings, self.tool_readings = (), ()
 
 
 class SessionTable:

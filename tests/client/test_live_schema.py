@@ -1,6 +1,6 @@
-"""The live schema: loads, probes and readings in their wire form, both directions; every check
-of a map's form (keys, number types, at's length, finiteness) with short bounded messages; the
-open, step/read, reset and close replies, their fields in the order the server writes them."""
+"""The live schema: loads, probes, tools and readings in their wire form, both directions; every
+check of a map's form (keys, number types, at's length, finiteness) with short bounded messages;
+the open, step/read, reset and close replies, their fields in the order the server writes them."""
 
 from __future__ import annotations
 
@@ -23,7 +23,10 @@ from membrane_client.live_schema import (
     LOAD_KEYS,
     MAX_LOADS,
     MAX_PROBES,
+    MAX_TOOLS,
     PROBE_KEYS,
+    TOOL_KEYS,
+    TOOL_KINDS,
     CloseReply,
     Initial,
     LiveInputError,
@@ -33,10 +36,13 @@ from membrane_client.live_schema import (
     Probe,
     ProbeReading,
     ResetReply,
+    Tool,
+    ToolReading,
     loads_from_wire,
     probes_from_wire,
+    tools_from_wire,
 )
-from membrane_client.protocol import Request, RequestError, encode, pack_array
+from membrane_client.protocol import Op, Request, RequestError, decode, encode, pack_array
 
 GOOD_LOAD = {"at": [0.5, 0.5], "force": 1.0, "radius": 0.05}
 GOOD_PROBE = {"at": [0.5, 0.5], "depth": 1e-5, "radius": 0.05}
@@ -259,3 +265,97 @@ def test_live_limits_check_a_probes_wire_map_through_the_schema() -> None:
         limits.probe_from_wire({**GOOD_PROBE, "depth": 0.002}, max_depth=1e-3)
     with pytest.raises(InvalidInput, match=r"probe radius must be in \[0.01, 10\]"):
         limits.probe_from_wire({**GOOD_PROBE, "radius": 0.001})
+
+
+def _sent(message: dict[str, Any]) -> dict[str, Any]:
+    """``message`` as the peer reads it (through msgpack)."""
+    return decode(encode(message))
+
+
+GOOD_TOOL = {"kind": "sphere", "at": [0.5, 0.5], "depth": 1e-3, "radius": 0.05}
+BAD_TOOLS: list[tuple[Any, str]] = [
+    ({**GOOD_TOOL, "kind": "cone"}, "tool kind must be 'sphere' or 'cylinder', got 'cone'"),
+    ({**GOOD_TOOL, "kind": "Sphere"}, "got 'Sphere'"),
+    ({**GOOD_TOOL, "kind": True}, "tool kind must be 'sphere' or 'cylinder', got a bool (True)"),
+    ({**GOOD_TOOL, "kind": None}, "got null"),
+    ({**GOOD_TOOL, "kind": ["sphere"]}, "got an array of 1"),
+    ({**GOOD_TOOL, "kind": b"sphere"}, "got bytes"),
+    ({**GOOD_TOOL, "depth": math.nan}, "tool depth must be finite"),
+    ({**GOOD_TOOL, "radius": "0.05"}, "tool radius must be a number, got a string '0.05'"),
+    ({**GOOD_TOOL, "at": [0.5]}, "tool at must be 2 numbers, got 1 value"),
+    ({k: v for k, v in GOOD_TOOL.items() if k != "kind"}, "(missing ['kind'], 0 extra)"),
+    ({**GOOD_TOOL, "height": 0.0}, "needs exactly the keys ['at', 'depth', 'kind', 'radius']"),
+    ("tool", "tool must be a map with keys ['at', 'depth', 'kind', 'radius'], got a string"),
+]
+
+
+@pytest.mark.parametrize(("item", "says"), BAD_TOOLS)
+def test_a_tool_map_of_the_wrong_form_is_refused_in_one_short_line(item: Any, says: str) -> None:
+    with pytest.raises(LiveInputError) as caught:
+        Tool.from_wire(item, 2)
+    _short(caught, says)
+
+
+def test_a_tools_long_kind_is_quoted_at_most_64_characters() -> None:
+    with pytest.raises(LiveInputError) as caught:
+        tools_from_wire([GOOD_TOOL, {**GOOD_TOOL, "kind": "x" * 10_000}], 2)
+    message = str(caught.value)
+    assert message.startswith("tool 1 kind must be 'sphere' or 'cylinder', got 'xxx")
+    assert "x" * 64 in message and "x" * 65 not in message and len(message) < 160
+
+
+def test_a_tool_both_ways_in_the_key_order() -> None:
+    tool = Tool("cylinder", (0.3, 0.6), -2e-3, 0.1)
+    assert list(tool.to_wire()) == list(TOOL_KEYS) == ["kind", "at", "depth", "radius"]
+    assert Tool.from_wire(tool.to_wire(), 2) == tool
+    assert tools_from_wire([{**GOOD_TOOL, "at": 0.4, "depth": 0}], 1) == (
+        Tool("sphere", (0.4,), 0.0, 0.05),
+    )  # fmt: skip
+    assert tools_from_wire([], 2) == ()
+    assert TOOL_KINDS == ("sphere", "cylinder") and MAX_TOOLS == 4
+    assert protocol.MAX_TOOLS is MAX_TOOLS
+
+
+def test_a_tool_reading_both_ways_nan_gap_kept_a_newer_servers_fields_ignored() -> None:
+    reading = ToolReading(3.5, (0.25, 0.5), 3, 7, 0.0, 1e-12)
+    wire = reading.to_wire()
+    assert list(wire) == ["force", "centre", "contacts", "points", "gap", "penetration"]
+    assert wire["centre"] == [0.25, 0.5] and ToolReading.from_wire(wire) == reading
+    assert ToolReading.from_wire({**wire, "kind": "sphere"}) == reading
+    empty = ToolReading.from_wire(
+        _sent(ToolReading(0.0, (0.5,), 0, 0, math.nan, math.nan).to_wire())
+    )
+    assert empty[:4] == (0.0, (0.5,), 0, 0) and math.isnan(empty.gap)
+    assert math.isnan(empty.penetration)
+    bad_counts = [{**wire, "contacts": 1.0}, {**wire, "points": True}, {"force": 1.0}, [1, 2]]
+    bad_numbers = [{**wire, "centre": 0.5}, {**wire, "centre": ["0.5"]}, {**wire, "gap": None}]
+    for bad in bad_counts + bad_numbers:
+        with pytest.raises(ProtocolError, match="tool reading"):
+            ToolReading.from_wire(bad)
+
+
+def test_a_step_reply_carries_tools_only_when_the_step_had_some() -> None:
+    tools = (ToolReading(1.0, (0.5, 0.5), 2, 5, 0.0, 0.0),)
+    reply = LiveStepReply("s", 1, 0.001, "r", (), tools=tools)
+    fields = reply.to_reply_fields()
+    assert list(fields) == ["session", "k", "t", "revision", "probes", "tools"]
+    assert LiveStepReply.from_reply(_sent(fields)).tools == tools
+    plain = LiveStepReply("s", 1, 0.001, "r", ()).to_reply_fields()
+    assert "tools" not in plain and LiveStepReply.from_reply(plain).tools == ()
+    bad_replies: list[Any] = [{}, [{"force": 1.0}]]
+    for bad in bad_replies:
+        with pytest.raises(ProtocolError, match="malformed live reply"):
+            LiveStepReply.from_reply({**plain, "tools": bad})
+
+
+def test_a_steps_tools_are_sent_and_read_back_bounded_by_max_tools() -> None:
+    step = Request(Op.STEP, 3, session="s", k=0, tools=[GOOD_TOOL])
+    assert decode(step.to_wire())["tools"] == [GOOD_TOOL]
+    assert Request.from_wire(step.to_wire()).tools == [GOOD_TOOL]
+    without = Request(Op.STEP, 3, session="s", k=0).to_wire()
+    assert "tools" not in decode(without) and Request.from_wire(without).tools == []
+    wire = {"v": 1, "id": 1, "op": "step", "session": "s", "k": 0}
+    assert Request.from_wire(encode({**wire, "tools": [GOOD_TOOL] * MAX_TOOLS})).tools
+    for bad in ([GOOD_TOOL] * (MAX_TOOLS + 1), GOOD_TOOL, "sphere"):
+        with pytest.raises(RequestError, match=f"'tools' must be a list of at most {MAX_TOOLS}"):
+            Request.from_wire(encode({**wire, "tools": bad}))

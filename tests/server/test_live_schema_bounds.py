@@ -1,7 +1,7 @@
 """The live schema and the engine, tied: every per-step limit the protocol states has one
-definition (the client's ``live_schema``) and the engine's own copies equal it; each bad load or
-probe map is a ``bad_request`` through the dispatcher, whether its form (the schema) or its
-value (the engine) is wrong; and the server hands the engine its own typed inputs."""
+definition (the client's ``live_schema``) and the engine's own copies equal it; each bad load,
+probe or tool map is a ``bad_request`` through the dispatcher, whether its form (the schema) or
+its value (the engine) is wrong; and the server hands the engine its own typed inputs."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ import pytest
 
 from membrane_client import live_limits, live_schema, protocol
 from membrane_client.protocol import ErrorCode, decode, encode
-from membrane_models.live import Grasp, LiveEngine, Load, ModalEngine, Probe, inputs
+from membrane_models.live import Grasp, LiveEngine, Load, ModalEngine, Probe, Tool, inputs
+from membrane_models.live.interface import TOOL_KINDS
 from membrane_server.dispatch import Dispatcher
 from membrane_server.live import engine_inputs
 from membrane_server.served import ServedScene
@@ -21,6 +22,7 @@ from membrane_server.sessions import SessionTable
 
 LOAD = {"at": [0.5, 0.5], "force": 1.0, "radius": 0.05}
 PROBE = {"at": [0.5, 0.5], "depth": 1e-5, "radius": 0.05}
+TOOL = {"kind": "sphere", "at": [0.5, 0.5], "depth": 1e-5, "radius": 0.05}
 
 
 @pytest.fixture(scope="module")
@@ -35,6 +37,8 @@ def test_every_limit_has_one_definition_and_the_engine_agrees_with_it(
         "MAX_LOADS": (inputs.MAX_LOADS, live_schema.MAX_LOADS),
         "MAX_PROBES": (inputs.MAX_PROBES, live_schema.MAX_PROBES),
         "MAX_GRASPS": (inputs.MAX_GRASPS, live_schema.MAX_GRASPS),
+        "MAX_TOOLS": (inputs.MAX_TOOLS, live_schema.MAX_TOOLS),
+        "TOOL_KINDS": (TOOL_KINDS, live_schema.TOOL_KINDS),
         "MAX_FORCE": (inputs.MAX_FORCE, live_schema.MAX_FORCE),
         "MAX_DEPTH": (inputs.MAX_DEPTH, live_schema.MAX_DEPTH),
         "MAX_RADIUS": (inputs.MAX_RADIUS, live_schema.MAX_RADIUS),
@@ -44,17 +48,19 @@ def test_every_limit_has_one_definition_and_the_engine_agrees_with_it(
     assert protocol.MAX_LOADS is live_schema.MAX_LOADS
     assert protocol.MAX_PROBES is live_schema.MAX_PROBES
     assert protocol.MAX_GRASPS is live_schema.MAX_GRASPS
+    assert protocol.MAX_TOOLS is live_schema.MAX_TOOLS
     assert live_limits.DEFAULT_MAX_FORCE is live_schema.MAX_FORCE
     assert live_limits.DEFAULT_MAX_DEPTH is live_schema.MAX_DEPTH
     assert live_limits.DEFAULT_MAX_RADIUS is live_schema.MAX_RADIUS
     # and what a served scene describes is the schema's
     live = membrane_live.describe()["live"]
-    keys = ("max_loads", "max_probes", "max_grasps", "max_force", "max_depth")
+    keys = ("max_loads", "max_probes", "max_grasps", "max_tools", "max_force", "max_depth")
     described = {key: live[key] for key in keys}
     assert described == {
         "max_loads": live_schema.MAX_LOADS,
         "max_probes": live_schema.MAX_PROBES,
         "max_grasps": live_schema.MAX_GRASPS,
+        "max_tools": live_schema.MAX_TOOLS,
         "max_force": live_schema.MAX_FORCE,
         "max_depth": live_schema.MAX_DEPTH,
     }
@@ -109,6 +115,18 @@ BAD_STEPS: list[tuple[dict[str, Any], str]] = [
     ({"probes": [PROBE, PROBE, {**PROBE, "depth": True}]}, "probe 2 depth"),
     ({"loads": [LOAD] * (live_schema.MAX_LOADS + 1)}, f"at most {live_schema.MAX_LOADS}"),
     ({"probes": [PROBE] * (live_schema.MAX_PROBES + 1)}, f"at most {live_schema.MAX_PROBES}"),
+    # a tool's form is the schema's, read before the engine steps
+    ({"tools": [TOOL] * (live_schema.MAX_TOOLS + 1)}, "'tools' must be a list of at most 4"),
+    (
+        {"tools": [{**TOOL, "kind": "cone"}]},
+        "tool 0 kind must be 'sphere' or 'cylinder', got 'cone'",
+    ),
+    ({"tools": [TOOL, {**TOOL, "kind": "x" * 10_000}]}, "tool 1 kind must be 'sphere' or"),
+    ({"tools": [{**TOOL, "kind": 1}]}, "tool 0 kind must be 'sphere' or 'cylinder', got int"),
+    ({"tools": [{k: v for k, v in TOOL.items() if k != "kind"}]}, "(missing ['kind'], 0 extra)"),
+    ({"tools": [{**TOOL, "depth": math.nan}]}, "tool 0 depth must be finite"),
+    ({"tools": [{**TOOL, "at": [0.5]}]}, "tool 0 at must be 2 numbers, got 1 value"),
+    ({"tools": [{**TOOL, "at": [1.5, 0.5]}], "strict": True}, "tool 0: at (1.5, 0.5) lies outside"),
 ]
 
 
@@ -174,9 +192,11 @@ def test_engine_inputs_convert_the_schemas_items_field_by_field() -> None:
         loads=[live_schema.Load((0.1, 0.2), 0.3, 0.4).to_wire()],
         probes=[live_schema.Probe((0.5, 0.6), 0.7, 0.8).to_wire()],
         grasps=[live_schema.Grasp((0.9, 0.1), -0.2, 0.3).to_wire()],
+        tools=[live_schema.Tool("cylinder", (0.4, 0.5), 0.6, 0.7).to_wire()],
     )  # fmt: skip
-    loads, probes, grasps = engine_inputs(request, 2)
+    loads, probes, grasps, tools = engine_inputs(request, 2)
     assert loads == (Load((0.1, 0.2), 0.3, 0.4),)
     assert probes == (Probe((0.5, 0.6), 0.7, 0.8),)
     assert grasps == (Grasp((0.9, 0.1), -0.2, 0.3),)
-    assert engine_inputs(protocol.Request("step", 1, "s", k=0), 1) == ((), (), ())
+    assert tools == (Tool("cylinder", (0.4, 0.5), 0.6, 0.7),) and type(tools[0]) is Tool
+    assert engine_inputs(protocol.Request("step", 1, "s", k=0), 1) == ((), (), (), ())

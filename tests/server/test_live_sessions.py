@@ -3,13 +3,24 @@ rules that keep a step from being applied twice and the sessions bounded."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 import pytest
 
-from membrane_client import Client, Grasp, GraspReading, Load, Probe, ServerError
+from membrane_client import (
+    Client,
+    Grasp,
+    GraspReading,
+    Load,
+    Probe,
+    ServerError,
+    Tool,
+    ToolReading,
+)
 from membrane_client.protocol import (
     MAX_REQUEST_BYTES,
     ErrorCode,
@@ -18,10 +29,12 @@ from membrane_client.protocol import (
     decode,
     pack_array,
 )
+from membrane_models.live import ENGINE_INPUTS, LiveEngine, ModalEngine
 from membrane_models.live import Grasp as EngineGrasp
 from membrane_models.live import Load as EngineLoad
-from membrane_models.live import ModalEngine
 from membrane_models.live import Probe as EngineProbe
+from membrane_models.live import Tool as EngineTool
+from membrane_models.live import ToolReading as EngineToolReading
 from membrane_models.problems import make_problem
 from membrane_server.dispatch import Dispatcher
 from membrane_server.in_process import InProcessTransport
@@ -303,3 +316,68 @@ def test_a_grasp_on_the_wire_is_the_engines_and_read_repeats_it(rope_live: Serve
             session.step(grasps=[{"at": [0.5], "height": 2e3, "radius": 0.0}])
         with pytest.raises(ServerError, match="'grasps' must be a list of at most 8"):
             session.step(grasps=[grasp] * 9)
+
+
+class _ToolStandIn:
+    """An engine that takes tools, until the engine's own land: it steps the wrapped engine
+    without them, keeps each step's keywords, and reads tool i with force i + 1 at its centre."""
+
+    def __init__(self, engine: LiveEngine[Any], inputs: frozenset[str] = ENGINE_INPUTS) -> None:
+        self.engine, self.inputs = engine, inputs
+        self.given: list[dict[str, Any]] = []
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.engine, name)
+
+    def step(
+        self,
+        state: Any,
+        loads: Sequence[EngineLoad] = (),
+        probes: Sequence[EngineProbe] = (),
+        **kw: Any,
+    ) -> Any:
+        self.given.append(dict(kw))
+        tools: Sequence[EngineTool] = kw.pop("tools", ())
+        result = self.engine.step(state, loads, probes, **kw)
+        readings = tuple(
+            EngineToolReading(float(i + 1), tool.at, 1, 2, 0.0, math.nan)
+            for i, tool in enumerate(tools)
+        )
+        return dataclasses.replace(result, tools=readings)
+
+
+def test_tools_reach_the_engine_as_its_own_and_their_readings_come_back(
+    rope_live: ServedScene, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Tools on the wire (a stand-in engine reads them): the engine gets its own ``Tool``s and
+    the ``tools`` keyword only when a step has some; the reply's readings are the engine's,
+    ``read`` repeats them, ``reset`` clears them; a bad kind, a fifth tool and tools for an
+    engine that takes none are refused (``strict`` on tools: test_live_schema_bounds)."""
+    assert rope_live.live is not None
+    stand_in = _ToolStandIn(rope_live.live)
+    monkeypatch.setattr(rope_live, "live", stand_in)
+    sphere, probe = Tool("sphere", (0.3,), 1e-3, 0.05), Probe((0.7,), 5e-4, 0.0)
+    with _client(rope_live) as client, client.session("rope-live") as session:
+        cylinder = {"kind": "cylinder", "at": [0.6], "depth": 0, "radius": 0.1}
+        frame = session.step(tools=[sphere, cylinder])
+        assert stand_in.given[-1]["tools"] == (
+            EngineTool("sphere", (0.3,), 1e-3, 0.05), EngineTool("cylinder", (0.6,), 0.0, 0.1)
+        )  # fmt: skip
+        assert all(type(tool) is EngineTool for tool in stand_in.given[-1]["tools"])
+        assert [reading[:5] for reading in frame.tools] == [
+            (1.0, (0.3,), 1, 2, 0.0), (2.0, (0.6,), 1, 2, 0.0)
+        ]  # fmt: skip
+        assert all(type(r) is ToolReading and math.isnan(r.penetration) for r in frame.tools)
+        assert [r[:5] for r in session.frame().tools] == [r[:5] for r in frame.tools]
+        assert session.step(probes=[probe]).tools == () and "tools" not in stand_in.given[-1]
+        session.step(tools=[sphere])
+        session.reset()
+        assert session.frame().tools == ()
+        with pytest.raises(ServerError, match="tool 0 kind must be 'sphere' or 'cylinder'"):
+            session.step(tools=[{**sphere.to_wire(), "kind": "cone"}])
+        with pytest.raises(ServerError, match="'tools' must be a list of at most 4"):
+            session.step(tools=[sphere] * 5)
+        stand_in.inputs = frozenset({"loads", "probes"})
+        with pytest.raises(ServerError, match="this scene's engine takes no tools"):
+            session.step(tools=[sphere])
+        assert session.k == 0

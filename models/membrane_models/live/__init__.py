@@ -15,6 +15,7 @@ from membrane_models.live.errors import (
     InvalidProbe,
     InvalidShape,
     InvalidState,
+    InvalidTool,
     LiveError,
 )
 from membrane_models.live.factory import build_modal_engine
@@ -31,6 +32,8 @@ from membrane_models.live.interface import (
     ProbeReading,
     Start,
     StepResult,
+    Tool,
+    ToolReading,
 )
 
 __all__ = [
@@ -45,6 +48,7 @@ __all__ = [
     "InvalidProbe",
     "InvalidShape",
     "InvalidState",
+    "InvalidTool",
     "LiveEngine",
     "LiveError",
     "Load",
@@ -54,6 +58,8 @@ __all__ = [
     "ProbeReading",
     "Start",
     "StepResult",
+    "Tool",
+    "ToolReading",
     "build_modal_engine",
     "film_frames",
     "film_load",

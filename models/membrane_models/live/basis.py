@@ -21,6 +21,11 @@ Conventions every basis keeps, so that the core is the same for all of them:
 
 A footprint is the basis's own object (the core only passes it back); a probe outside the
 basis's domain has none (``footprints`` gives None) and touches nothing.
+
+Rigid tools (``tools``) constrain lattice points, each pushed by a footprint of the basis's
+``tool_force_radius``: ``point_frame`` gives the frame at a few lattice points and
+``point_compliance`` their one-step compliance to those footprints, both exactly as ``frame``
+would show them.
 """
 
 from __future__ import annotations
@@ -72,14 +77,32 @@ class ModalBasis(Protocol[FootprintT]):
     def engine_bytes(self) -> int:
         """The most the basis and any caches it shares hold, whatever sessions send."""
 
+    @property
+    def lattice_coordinates(self) -> FloatArray:
+        """Every lattice point's coordinates, (points, dims), x-major (read-only)."""
+
+    @property
+    def movable(self) -> NDArray[np.bool_]:
+        """Which lattice points the tissue can move at (not clamped, inside the domain)."""
+
+    @property
+    def tool_force_radius(self) -> float | None:
+        """The footprint radius a tool's point pushes with (None: this basis carries none)."""
+
     def contains(self, at: tuple[float, ...]) -> bool:
         """Whether a centre lies in the domain (a load outside it is refused)."""
 
     def footprints(
-        self, loads: Sequence[Load], probes: Sequence[Probe], budget: StepBudget
+        self,
+        loads: Sequence[Load],
+        probes: Sequence[Probe],
+        budget: StepBudget,
+        *,
+        tool_points: bool = False,
     ) -> tuple[list[FootprintT], list[FootprintT | None]]:
         """The loads' and probes' footprints (None: a probe outside the domain), after
-        pricing the step against ``budget``.
+        pricing the step against ``budget`` (``tool_points``: the probes are a tool's lattice
+        points, each pushing with its footprint; their spectra may be cached).
 
         Raises:
             StepTooCostly: the step would cost more than ``budget``.
@@ -103,6 +126,21 @@ class ModalBasis(Protocol[FootprintT]):
     def frame(self, q: FloatArray, applied: Sequence[tuple[FootprintT, float]]) -> FloatArray:
         """Displacements on the lattice (x-major, flattened): the modes ``q`` plus the static
         correction's field of the forces ``applied``."""
+
+    def point_frame(
+        self,
+        points: NDArray[np.intp],
+        q: FloatArray,
+        applied: Sequence[tuple[FootprintT, float]],
+    ) -> FloatArray:
+        """``frame(q, applied)`` at the lattice points ``points`` only."""
+
+    def point_compliance(
+        self, points: NDArray[np.intp], prints: Sequence[FootprintT], gain: FloatArray
+    ) -> FloatArray:
+        """(points, prints): the frame's value at each point per unit force held on each
+        footprint over a step whose stepped modes respond by ``gain`` (on the mode box) to a
+        unit modal force, with the static correction of the others."""
 
     def project(self, shape: ArrayLike, what: str) -> tuple[FloatArray, float]:
         """Least-squares modal amplitudes of a shape on the lattice (0 off the stepped modes)

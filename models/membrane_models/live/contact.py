@@ -17,6 +17,15 @@ Grasps are bilateral: C F = b exactly on their rows, F of either sign. With E th
 and U the probes', F_E = C_EE^-1 (b_E - C_EU F_U), and F_U solves the probes' problem on the
 Schur complement C_UU - C_UE C_EE^-1 C_EU (positive definite when C is) with b_U - C_UE
 C_EE^-1 b_E: the mixed problem exactly, by the same solver.
+
+A rigid tool's rows are lattice points, each pushed by a small footprint (``tools``): the
+displacement at a point per unit force on another point's footprint is not quite the reverse
+(a point and a footprint are not the same readout), so C is not symmetric, but it is a P-matrix
+(its symmetric part is the positive definite Gram matrix of the footprints, up to the
+footprints' width). ``solve_points`` solves that problem by block principal pivoting (Judice and
+Pires 1994: flip every infeasible row while their number falls, else one row by Murty's least
+index rule), finite for P-matrices and a few pivots in practice, from the guess that every
+point the free tissue crosses is in contact.
 """
 
 from __future__ import annotations
@@ -28,11 +37,12 @@ from numpy.typing import NDArray
 
 from membrane_models.live.errors import InvalidGrasp, InvalidProbe
 
-__all__ = ["single_contact", "solve_contact", "solve_mixed"]
+__all__ = ["single_contact", "solve_contact", "solve_mixed", "solve_points"]
 
 FloatArray = NDArray[np.float64]
 
 _TOLERANCE = 1e-12  # relative to the largest violation: what counts as zero in the checks
+_BLOCK_TRIES = 3  # block pivots allowed without fewer infeasible rows before single pivots
 
 
 def solve_contact(compliance: FloatArray, violation: FloatArray) -> FloatArray:
@@ -84,6 +94,43 @@ def solve_mixed(
         force[free] = solve_contact(0.5 * (schur + schur.T), b[free] - coupling @ solve_held[:, 0])
     force[held] = solve_held[:, 0] - solve_held[:, 1:] @ force[free]
     return force
+
+
+def solve_points(compliance: FloatArray, violation: FloatArray) -> FloatArray:
+    """``solve_contact`` for a P-matrix C that need not be symmetric (a tool's points).
+
+    Raises:
+        InvalidProbe: no force can hold the tissue (a row of zero compliance pressed).
+    """
+    c = np.asarray(compliance, dtype=np.float64)
+    b = np.asarray(violation, dtype=np.float64)
+    n = b.size
+    if n == 0 or not (b > 0.0).any():
+        return np.zeros(n)
+    if n == 1:
+        return np.array([single_contact(float(c[0, 0]), float(b[0]))])
+    if not np.diag(c).min() > 0.0:
+        raise InvalidProbe("a tool's point cannot move (zero compliance): it cannot be pressed")
+    gap_tol, force_tol = _tolerances(c, b)
+    active = b > 0.0
+    fewest, tries = n + 1, _BLOCK_TRIES
+    for _ in range(64 * n * n):  # Murty's pivots alone end for a P-matrix; this is a guard
+        force = _forces(c, b, active)
+        gap = c @ force - b
+        bad = (active & (force < -force_tol)) | (~active & (gap < -gap_tol))
+        count = int(bad.sum())
+        if count == 0:
+            return np.maximum(force, 0.0)
+        if count < fewest:
+            fewest, tries = count, _BLOCK_TRIES
+        else:
+            tries -= 1
+        if tries > 0:
+            active ^= bad
+        else:
+            last = int(np.flatnonzero(bad)[-1])
+            active[last] = not active[last]
+    raise RuntimeError(f"tool contact did not converge in {64 * n * n} pivots (n = {n})")
 
 
 def single_contact(c: float, b: float) -> float:

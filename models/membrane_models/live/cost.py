@@ -31,6 +31,7 @@ __all__ = [
     "StepTooCostly",
     "step_cost",
     "table_step_cost",
+    "tool_step_cost",
 ]
 
 # About 5 ms of one core: a step's worst legal cost, bounded so that one session cannot hold
@@ -49,6 +50,7 @@ _CROSS = 0.5  # one mode product of a cross-compliance (a matrix-vector product)
 _BOX = 1.5  # one entry of a combined box (allocation and the 1 / w^2 weights)
 _SYNTHESIS = 0.15  # one mode per lattice point of an axis, synthesising the frame
 _FOLD = 4.0  # one coefficient folded onto the modes a lattice resolves
+_PIVOT = 2.0  # a tool's contact solves, per cubed point count (a few dense solves)
 
 
 class StepTooCostly(LiveError):
@@ -129,6 +131,28 @@ def step_cost(
             work += _CROSS * (sum(p.box for p in probes) + pairs * max(p.box for p in probes))
         work += _combined(prints) + _synthesis(prints, lattice)
     return StepCost(work, held)
+
+
+def tool_step_cost(
+    loads: Sequence[FootprintSize],
+    points: Sequence[FootprintSize],
+    lattice: tuple[int, ...],
+    corrected: bool,
+) -> StepCost:
+    """The estimated cost of a step with rigid tools whose lattice points push with the
+    footprints ``points``: every spectrum and the frame as ``step_cost`` prices them, the free
+    frame at the points, and their compliance as the sine basis computes it (over the
+    distinct lattice lines and footprint centres: about 1.5 P of them for P points in a disk,
+    each a product with the M x M weights, then P^2 sums of M), with the pivots' solves."""
+    base = step_cost([*loads, *points], [], lattice, corrected)
+    if not points:
+        return base
+    count = len(points)
+    box = max(p.box for p in points)
+    side = max(max(p.counts) for p in points)
+    work = _CROSS * (1.5 * count * box + count * count * side)
+    work += _combined(loads) + _PIVOT * count**3
+    return StepCost(base.work + work, base.held_bytes)
 
 
 def _largest_counts(prints: Sequence[FootprintSize]) -> list[int]:

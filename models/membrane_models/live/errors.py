@@ -16,6 +16,7 @@ __all__ = [
     "InvalidProbe",
     "InvalidShape",
     "InvalidState",
+    "InvalidTool",
     "LiveError",
 ]
 
@@ -38,6 +39,10 @@ class InvalidProbe(LiveError):
 
 class InvalidGrasp(LiveError):
     """A grasp ``{at, height, radius}`` that cannot be held."""
+
+
+class InvalidTool(LiveError):
+    """A rigid tool ``{kind, at, depth, radius}`` that cannot be applied."""
 
 
 class InvalidShape(LiveError):

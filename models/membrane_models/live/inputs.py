@@ -18,8 +18,14 @@ from typing import TypeVar, cast
 
 import numpy as np
 
-from membrane_models.live.errors import InvalidGrasp, InvalidLoad, InvalidProbe, LiveError
-from membrane_models.live.interface import Grasp, Load, Probe
+from membrane_models.live.errors import (
+    InvalidGrasp,
+    InvalidLoad,
+    InvalidProbe,
+    InvalidTool,
+    LiveError,
+)
+from membrane_models.live.interface import TOOL_KINDS, Grasp, Load, Probe, Tool
 
 __all__ = [
     "MAX_DEPTH",
@@ -28,22 +34,29 @@ __all__ = [
     "MAX_LOADS",
     "MAX_PROBES",
     "MAX_RADIUS",
+    "MAX_TOOLS",
+    "MAX_TOOL_POINTS",
     "inside_domain",
     "parse_grasps",
     "parse_loads",
     "parse_probes",
+    "parse_tools",
 ]
 
 MAX_LOADS = 64
 MAX_PROBES = 8
 MAX_GRASPS = 8
+MAX_TOOLS = 4
+# Lattice points under one tool: each is a row of the contact problem (a dense solve of at
+# most MAX_TOOLS x MAX_TOOL_POINTS unknowns per pivot) and an applied footprint of the state.
+MAX_TOOL_POINTS = 64
 # Magnitudes in problem units (the domain is 1 long, responses are about 1e-3 per unit force):
 # far past any meaningful input, and small enough that no sum of a step can overflow float64
 # nor a frame float32.
 MAX_FORCE = 1e6
 MAX_DEPTH = 1e3
 MAX_RADIUS = 10.0  # wider, a Gaussian is uniform over the domain to within 1 %
-_Item = TypeVar("_Item", Load, Probe, Grasp)
+_Item = TypeVar("_Item", Load, Probe, Grasp, Tool)
 _Held = TypeVar("_Held", Probe, Grasp)
 
 
@@ -108,6 +121,39 @@ def parse_grasps(grasps: Sequence[Grasp], dims: int) -> tuple[Grasp, ...]:
         InvalidGrasp: what is wrong, and with which grasp.
     """
     return _parse_held(grasps, Grasp, "height", dims, MAX_GRASPS, InvalidGrasp)
+
+
+def parse_tools(tools: Sequence[Tool], dims: int) -> tuple[Tool, ...]:
+    """``tools`` as checked ``Tool`` objects (a known kind, |depth| <= MAX_DEPTH, radius > 0 and
+    at most MAX_RADIUS; any finite centre).
+
+    Raises:
+        InvalidTool: what is wrong, and with which tool.
+    """
+    out = []
+    for index, item in enumerate(_bounded(tools, MAX_TOOLS, "tools", InvalidTool)):
+        what = f"tool {index}"
+        tool = _typed(item, Tool, what, InvalidTool)
+        if type(tool.kind) is not str or tool.kind not in TOOL_KINDS:
+            kinds = " or ".join(repr(k) for k in TOOL_KINDS)
+            raise InvalidTool(f"{what}: kind must be {kinds}, got {_name(tool.kind)}")
+        at = _point(tool.at, dims, what, InvalidTool)
+        depth = _number(tool.depth, f"{what} depth", InvalidTool)
+        if not -MAX_DEPTH <= depth <= MAX_DEPTH:
+            reason = f"depth must be in [-{MAX_DEPTH:g}, {MAX_DEPTH:g}], got {depth:.6g}"
+            raise InvalidTool(f"{what}: {reason}")
+        radius = _radius(tool.radius, what, InvalidTool)
+        if radius == 0.0:
+            raise InvalidTool(f"{what}: a rigid tool needs a radius > 0 (a point is a probe)")
+        out.append(Tool(tool.kind, at, depth, radius))
+    return tuple(out)
+
+
+def _name(value: object) -> str:
+    """A value for a message, bounded: short strings quoted, anything else by type."""
+    if type(value) is str and len(value) <= 20:
+        return repr(value)
+    return type(value).__name__
 
 
 def _parse_held(

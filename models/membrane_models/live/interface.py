@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "ENGINE_INPUTS",
+    "TOOL_KINDS",
     "BoundedEngine",
     "Grasp",
     "GraspReading",
@@ -33,12 +34,17 @@ __all__ = [
     "ProbeReading",
     "Start",
     "StepResult",
+    "Tool",
+    "ToolReading",
 ]
 
 FloatArray = NDArray[np.float64]
 Hold = Literal["zoh", "foh"]
-# What a live engine may take: loads, probes and grasps per step, initial shapes at open.
-ENGINE_INPUTS = frozenset({"loads", "probes", "grasps", "initial"})
+# What a live engine may take: loads, probes, grasps and tools per step, initial shapes at open.
+ENGINE_INPUTS = frozenset({"loads", "probes", "grasps", "tools", "initial"})
+# A rigid tool's shape: a sphere (a ball tip; a circle across a string) or a flat-ended
+# cylinder (a punch; a flat segment on a string), its axis along the displacement axis.
+TOOL_KINDS = ("sphere", "cylinder")
 StateT = TypeVar("StateT")
 
 
@@ -121,6 +127,48 @@ class GraspReading:
 
 
 @dataclass(frozen=True)
+class Tool:
+    """A rigid tool pressing along -axis, whose lowest point is ``depth`` below the rest surface
+    (signed: < 0 holds it above) over the centre ``at``.
+
+    Its surface over a point at distance rho from the centre is ``-depth + R - sqrt(R^2 -
+    rho^2)`` for a sphere of radius R, and ``-depth`` for a cylinder of radius R, for rho <= R.
+    The tissue is kept at or below that surface at every lattice point under the tool (the
+    points a frame shows), each carrying its contact force as the basis's tool footprint
+    (``describe``'s ``tool_force_radius``). A tool that covers no lattice point touches nothing.
+    """
+
+    kind: str
+    at: tuple[float, ...]
+    depth: float
+    radius: float
+
+
+@dataclass(frozen=True)
+class ToolReading:
+    """What a rigid tool measured at the end of a step.
+
+    Attributes:
+        force: the total contact force >= 0 (pushes the tissue along -axis; the tool feels it
+            along +axis).
+        centre: where that force acts (its force-weighted centre; the tool's centre when 0).
+        contacts: lattice points in contact (force > 0).
+        points: lattice points under the tool (its constraint points).
+        gap: the smallest distance between the tool's surface and the tissue over its points
+            (0 in contact; NaN without points).
+        penetration: the largest depth of tissue above the tool's surface over its points (0
+            up to rounding: the contact is solved exactly; NaN without points).
+    """
+
+    force: float
+    centre: tuple[float, ...]
+    contacts: int
+    points: int
+    gap: float
+    penetration: float
+
+
+@dataclass(frozen=True)
 class StepResult(Generic[StateT]):
     """One step's answer.
 
@@ -131,6 +179,7 @@ class StepResult(Generic[StateT]):
         work: work done on the kept modes by loads and probes over the step (zero-order hold;
             None under first-order hold).
         grasps: one reading per grasp, in the order given (engines without grasps: none).
+        tools: one reading per tool, in the order given (engines without tools: none).
     """
 
     state: StateT
@@ -138,6 +187,7 @@ class StepResult(Generic[StateT]):
     probes: tuple[ProbeReading, ...]
     work: float | None
     grasps: tuple[GraspReading, ...] = ()
+    tools: tuple[ToolReading, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from membrane_models.live.cost import FootprintSize, StepBudget, step_cost
+from membrane_models.live.cost import FootprintSize, StepBudget, step_cost, tool_step_cost
 from membrane_models.live.errors import InvalidLoad, InvalidProbe, LiveError
 from membrane_models.live.footprint import (
     CACHE_BYTES,
@@ -34,6 +34,7 @@ from membrane_models.live.modes import ModeSet
 from membrane_models.live.projection import project
 from membrane_models.live.static_correction import ResidualFlexibility
 from membrane_models.live.synthesis import DENSE_TABLE_ELEMENTS, LatticeSynthesis
+from membrane_models.sines import axis_sines
 
 __all__ = ["DEFAULT_MAX_REACH", "SineBasis"]
 
@@ -71,6 +72,17 @@ class SineBasis:
         self.residual = ResidualFlexibility(c, modes, max_reach, static_correction)
         self.synthesis = LatticeSynthesis(lattice)
         self._scale = 0.5**self._dims
+        self._axes = tuple(np.linspace(0.0, 1.0, n) for n in lattice)
+        grid = np.meshgrid(*self._axes, indexing="ij")
+        self._coordinates = np.stack(grid, axis=-1).reshape(-1, self._dims)
+        self._coordinates.setflags(write=False)
+        interior = np.ones(lattice, dtype=bool)
+        for axis in range(self._dims):
+            edges = [slice(None)] * self._dims
+            edges[axis] = slice(0, None, max(lattice[axis] - 1, 1))
+            interior[tuple(edges)] = False
+        self._movable = interior.reshape(-1)
+        self._movable.setflags(write=False)
 
     @property
     def spatial_dims(self) -> int:
@@ -110,6 +122,25 @@ class SineBasis:
         tables = sum(2 * 8 * DENSE_TABLE_ELEMENTS for _ in self._lattice)
         return weights + tables + CACHE_BYTES
 
+    @property
+    def lattice_coordinates(self) -> FloatArray:
+        return self._coordinates
+
+    @property
+    def movable(self) -> NDArray[np.bool_]:
+        """The lattice's interior (its edges are clamped)."""
+        return self._movable
+
+    @property
+    def tool_force_radius(self) -> float:
+        """Point forces on the string (finite there); on the membrane half the lattice's
+        spacing, at least ``min_radius``: neighbouring points' footprints barely overlap (their
+        weight at the next point is e^-4), so the points' compliance stays well conditioned."""
+        if self._dims == 1:
+            return 0.0
+        spacing = min(1.0 / (n - 1) for n in self._lattice)
+        return max(self.min_radius, 0.5 * spacing)
+
     contains = staticmethod(inside_domain)  # the unit interval or square
 
     def describe(self) -> dict[str, object]:
@@ -122,7 +153,12 @@ class SineBasis:
     # -- footprints -------------------------------------------------------------------------
 
     def footprints(
-        self, loads: Sequence[Load], probes: Sequence[Probe], budget: StepBudget
+        self,
+        loads: Sequence[Load],
+        probes: Sequence[Probe],
+        budget: StepBudget,
+        *,
+        tool_points: bool = False,
     ) -> tuple[list[Footprint], list[Footprint | None]]:
         load_sizes = [self.footprint_size(ld, "load", i) for i, ld in enumerate(loads)]
         probe_sizes = [
@@ -130,12 +166,14 @@ class SineBasis:
             for i, pr in enumerate(probes)
         ]
         inside = [size for size in probe_sizes if size is not None]
-        budget.check(step_cost(load_sizes, inside, self._lattice, self.residual.enabled))
+        price = tool_step_cost if tool_points else step_cost
+        budget.check(price(load_sizes, inside, self._lattice, self.residual.enabled))
         load_prints = [
             self.footprint(ld, size, "load") for ld, size in zip(loads, load_sizes, strict=True)
         ]
+        kind = "tool point" if tool_points else "probe"
         probe_prints = [
-            None if size is None else self.footprint(pr, size, "probe")
+            None if size is None else self.footprint(pr, size, kind)
             for pr, size in zip(probes, probe_sizes, strict=True)
         ]
         return load_prints, probe_prints
@@ -172,7 +210,7 @@ class SineBasis:
         """
         if item.radius == 0.0:
             return self._point(item)
-        return make_footprint(item.at, item.radius, size.counts, cache=kind == "load")
+        return make_footprint(item.at, item.radius, size.counts, cache=kind != "probe")
 
     def modal_force(self, footprint: Footprint) -> FloatArray:
         """s on the stepped box: the footprint's spectra cut to it (their outer product)."""
@@ -229,8 +267,103 @@ class SineBasis:
             values = values + field_values
         return values
 
+    def point_frame(
+        self,
+        points: NDArray[np.intp],
+        q: FloatArray,
+        applied: Sequence[tuple[Footprint, float]],
+    ) -> FloatArray:
+        coefficients = q
+        spread = [(fp, f) for fp, f in applied if f != 0.0 and not fp.is_point]
+        if spread and self.residual.enabled:
+            coefficients = _add(coefficients, self.residual.combined(spread))
+        values = self._at_points(coefficients, points)
+        for footprint, force in applied:
+            if force != 0.0 and footprint.is_point and self.residual.enabled:
+                field_values = self.residual.point_field(footprint.at[0], force, self.synthesis)
+                values = values + field_values[points]
+        return values
+
+    def point_compliance(
+        self, points: NDArray[np.intp], prints: Sequence[Footprint], gain: FloatArray
+    ) -> FloatArray:
+        """sum_k phi_k(x_i) W_k s_j,k with W the stepped gain on the box and 1 / w^2 beyond
+        (the static correction's weights), for every point i and footprint j; a point force on
+        the string adds its closed-form residual instead."""
+        counts = tuple(
+            max([box, *(len(fp.spectra[a]) for fp in prints)])
+            for a, box in enumerate(self._modes.box)
+        )
+        weights = np.array(self.residual.weights(counts)) if self.residual.enabled else None
+        if weights is None:
+            weights = np.zeros(counts)
+        weights[tuple(slice(0, n) for n in gain.shape)] += gain
+        rows = self._rows(points)
+        if self._dims == 2:
+            return self._separable(rows, weights, prints)
+        spectra = self._padded(prints, 0, counts[0])
+        table = axis_sines(self._axes[0][rows[0]], counts[0])
+        compliance = table @ (weights[:, None] * spectra.T)
+        for j, footprint in enumerate(prints):
+            if footprint.is_point and self.residual.enabled:
+                # the closed form carries every mode not stepped: the box's only the stepped
+                stepped = table[:, : gain.size] @ (gain * spectra[j, : gain.size])
+                unit = self.residual.point_field(footprint.at[0], 1.0, self.synthesis)
+                compliance[:, j] = stepped + unit[points]
+        return np.asarray(compliance)
+
     def project(self, shape: ArrayLike, what: str) -> tuple[FloatArray, float]:
         return project(shape, self._modes, self.synthesis, what)
+
+    def _rows(self, points: NDArray[np.intp]) -> tuple[NDArray[np.intp], ...]:
+        """Each point's index along each axis."""
+        if self._dims == 1:
+            return (points,)
+        return tuple(np.unravel_index(points, self._lattice))
+
+    def _at_points(self, coefficients: FloatArray, points: NDArray[np.intp]) -> FloatArray:
+        """sum_m Z_m phi_m at lattice points: sine rows of the distinct lines they lie on."""
+        rows = self._rows(points)
+        if self._dims == 1:
+            return np.asarray(axis_sines(self._axes[0][rows[0]], coefficients.size) @ coefficients)
+        (ux, ix), (uy, iy) = (np.unique(r, return_inverse=True) for r in rows)
+        tx = axis_sines(self._axes[0][ux], coefficients.shape[0])
+        ty = axis_sines(self._axes[1][uy], coefficients.shape[1])
+        return np.asarray((tx @ coefficients @ ty.T)[ix, iy])
+
+    def _separable(
+        self,
+        rows: tuple[NDArray[np.intp], ...],
+        weights: FloatArray,
+        prints: Sequence[Footprint],
+    ) -> FloatArray:
+        """The membrane's point compliances, sum_mn X[a, c, m] W_mn Y[b, d, n] with X the sines
+        of the points' x lines times the spectra of the footprints' x centres (Y alike): one
+        matrix product over the distinct lines and centres, whatever the number of pairs."""
+        (ux, ix), (uy, iy) = (np.unique(r, return_inverse=True) for r in rows)
+        factors = []
+        for axis, lines in enumerate((ux, uy)):
+            centres, first, inverse = np.unique(
+                [fp.at[axis] for fp in prints], return_index=True, return_inverse=True
+            )
+            count = weights.shape[axis]
+            spectra = self._padded([prints[i] for i in first], axis, count)
+            sines = axis_sines(self._axes[axis][lines], count)
+            factors.append(((sines[:, None, :] * spectra[None, :, :]), inverse, centres.size))
+        (ax, jx, cx), (ay, jy, cy) = factors
+        gx, gy = ax.shape[0], ay.shape[0]
+        both = ax.reshape(gx * cx, -1) @ weights @ ay.reshape(gy * cy, -1).T
+        both = both.reshape(gx, cx, gy, cy)
+        return np.asarray(both[ix[:, None], jx[None, :], iy[:, None], jy[None, :]])
+
+    @staticmethod
+    def _padded(prints: Sequence[Footprint], axis: int, count: int) -> FloatArray:
+        """The footprints' spectra along ``axis``, zero-padded to ``count`` entries."""
+        out = np.zeros((len(prints), count))
+        for row, footprint in enumerate(prints):
+            spectrum = footprint.spectra[axis]
+            out[row, : len(spectrum)] = spectrum
+        return out
 
     # -- helpers ----------------------------------------------------------------------------
 

@@ -21,6 +21,11 @@ Per step (zero-order hold; first-order hold ramps the loads' modal force from th
    (q = q_f - sum F_j G_q s_j, and so for v);
 4. the frame: the stepped modes plus the static response of the others to every force acting.
 
+Rigid tools (``tools``) replace step 2 and 3 by their points' problem: the free frame at the
+lattice points under them, their one-step compliance to the points' footprints (the basis's
+``point_frame`` and ``point_compliance``, what the frame will show), and the complementarity
+problem on that non-symmetric P-matrix (``contact.solve_points``).
+
 Contact forces are held over the step under either hold: they are this step's unknowns.
 """
 
@@ -35,13 +40,19 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from membrane_models.live.basis import FootprintT, ModalBasis
-from membrane_models.live.contact import single_contact, solve_contact, solve_mixed
+from membrane_models.live.contact import (
+    single_contact,
+    solve_contact,
+    solve_mixed,
+    solve_points,
+)
 from membrane_models.live.cost import StepBudget
 from membrane_models.live.errors import (
     InvalidEngineSettings,
     InvalidLoad,
     InvalidProbe,
     InvalidState,
+    InvalidTool,
 )
 from membrane_models.live.inputs import (
     MAX_DEPTH,
@@ -49,12 +60,16 @@ from membrane_models.live.inputs import (
     MAX_LOADS,
     MAX_PROBES,
     MAX_RADIUS,
+    MAX_TOOL_POINTS,
+    MAX_TOOLS,
     parse_grasps,
     parse_loads,
     parse_probes,
+    parse_tools,
 )
 from membrane_models.live.interface import (
     ENGINE_INPUTS,
+    TOOL_KINDS,
     Grasp,
     GraspReading,
     Hold,
@@ -63,8 +78,10 @@ from membrane_models.live.interface import (
     ProbeReading,
     Start,
     StepResult,
+    Tool,
 )
 from membrane_models.live.projection import MAX_SHAPE_VALUE
+from membrane_models.live.tools import ToolPoints, tool_points, tool_readings
 from membrane_models.live.transition import Transition, transition
 
 __all__ = ["ModalState", "ModalStepper"]
@@ -192,7 +209,9 @@ class ModalStepper(Generic[FootprintT]):
         """The most one state holds: q, v and the held load force on the mode box, and the
         applied footprints' spectra within the budget (with their objects)."""
         arrays = 3 * 8 * math.prod(self.modes.box)
-        footprints = (MAX_LOADS + MAX_PROBES) * _FOOTPRINT_OVERHEAD
+        footprints = (MAX_LOADS + max(MAX_PROBES, MAX_TOOLS * MAX_TOOL_POINTS)) * (
+            _FOOTPRINT_OVERHEAD
+        )
         return arrays + self.budget.max_held_bytes + footprints + _STATE_OVERHEAD
 
     def start(
@@ -217,20 +236,24 @@ class ModalStepper(Generic[FootprintT]):
         frame: bool = True,
         work: bool = False,
         grasps: Sequence[Grasp] = (),
+        tools: Sequence[Tool] = (),
     ) -> StepResult[ModalState]:
         """One step under ``loads`` (held or ramped), ``probes`` (contact at its end) and
-        ``grasps`` (held exactly at their heights at its end, with the probes' contact).
+        ``grasps`` (held exactly at their heights at its end, with the probes' contact), or
+        rigid ``tools`` (no lattice point under one above its surface at the step's end).
 
         Args:
             frame: synthesise the frame (a haptic loop asks for one every few steps).
             work: report the work done on the stepped modes (zero-order hold only).
 
         Raises:
-            InvalidLoad, InvalidProbe, InvalidGrasp: bad input; ``state`` is unchanged (it
-                always is).
+            InvalidLoad, InvalidProbe, InvalidGrasp, InvalidTool: bad input; ``state`` is
+                unchanged (it always is).
             InvalidState: a state from another engine.
         """
         self._check(state)
+        if tools:
+            return self._step_tools(state, loads, tools, probes, grasps, frame, work)
         basis = self.basis
         checked_loads = parse_loads(loads, self._dims, basis.contains) if loads else ()
         checked_probes = parse_probes(probes, self._dims) if probes else ()
@@ -240,6 +263,71 @@ class ModalStepper(Generic[FootprintT]):
         checked_probes = (*checked_probes, *held)
         load_prints, probe_prints = basis.footprints(checked_loads, checked_probes, self.budget)
         load_forces = [ld.force for ld in checked_loads]
+        q, v, p1 = self._free_step(state, load_prints, load_forces)
+        readings, contact = self._contact(
+            q, v, checked_probes, probe_prints, load_prints, load_forces, len(held)
+        )
+        done = self._work(p1, contact, q, state.q) if work and self.hold == "zoh" else None
+        applied: list[tuple[Any, float]] = [*zip(load_prints, load_forces, strict=True)]
+        for fp, reading in zip(probe_prints, readings, strict=True):
+            if fp is not None and reading.force != 0.0:
+                applied.append((fp, -reading.force))
+        _require_finite(q, v, readings)
+        q.flags.writeable = v.flags.writeable = p1.flags.writeable = False
+        index = state.step + 1
+        new = ModalState(index, index * self._dt, q, v, p1, tuple(applied), self._owner)
+        probed = len(readings) - len(held)
+        grasped = tuple(_grasp_reading(r) for r in readings[probed:])
+        return StepResult(new, self.frame(new) if frame else None, readings[:probed], done, grasped)
+
+    def _step_tools(
+        self,
+        state: ModalState,
+        loads: Sequence[Load],
+        tools: Sequence[Tool],
+        probes: Sequence[Probe],
+        grasps: Sequence[Grasp],
+        frame: bool,
+        work: bool,
+    ) -> StepResult[ModalState]:
+        """``step`` with rigid tools (and loads): the tools' points' contact, solved exactly."""
+        basis = self.basis
+        if probes or grasps:
+            raise InvalidTool("a step takes rigid tools, or probes and grasps: not both")
+        radius = basis.tool_force_radius
+        if radius is None:
+            raise InvalidTool("this tissue's tables carry no footprint a tool's point can push")
+        checked_loads = parse_loads(loads, self._dims, basis.contains) if loads else ()
+        checked_tools = parse_tools(tools, self._dims)
+        points = tool_points(
+            checked_tools, basis.lattice_coordinates, basis.movable, MAX_TOOL_POINTS
+        )
+        pushes = [Probe(tuple(float(x) for x in c), 0.0, radius) for c in points.coordinates]
+        load_prints, found = basis.footprints(checked_loads, pushes, self.budget, tool_points=True)
+        prints = [fp for fp in found if fp is not None]
+        if len(prints) != len(found):
+            raise AssertionError("a movable lattice point lies outside the basis's domain")
+        load_forces = [ld.force for ld in checked_loads]
+        q, v, p1 = self._free_step(state, load_prints, load_forces)
+        applied: list[tuple[Any, float]] = [*zip(load_prints, load_forces, strict=True)]
+        forces, displacement = self._tool_contact(q, v, points, prints, applied)
+        pressing = [(fp, float(f)) for fp, f in zip(prints, forces, strict=True) if f > 0.0]
+        contact = [(basis.modal_force(fp), f) for fp, f in pressing]
+        done = self._work(p1, contact, q, state.q) if work and self.hold == "zoh" else None
+        applied += [(fp, -f) for fp, f in pressing]
+        readings = tool_readings(checked_tools, points, forces, displacement)
+        _require_finite(q, v, ())
+        if not all(math.isfinite(r.force) for r in readings):
+            raise InvalidTool("this step's contact forces are not finite: its depths are too large")
+        q.flags.writeable = v.flags.writeable = p1.flags.writeable = False
+        index = state.step + 1
+        new = ModalState(index, index * self._dt, q, v, p1, tuple(applied), self._owner)
+        return StepResult(new, self.frame(new) if frame else None, (), done, (), readings)
+
+    def _free_step(
+        self, state: ModalState, load_prints: Sequence[FootprintT], load_forces: Sequence[float]
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """q, v at the end of a step without contact, and the loads' modal force then."""
         tr, q0, v0 = self.transition, state.q, state.v
         p1 = self._modal_force(load_prints, load_forces)
         q = tr.qq * q0
@@ -253,21 +341,30 @@ class ModalStepper(Generic[FootprintT]):
         elif load_prints:
             q += tr.zoh_q * p1
             v += tr.zoh_v * p1
-        readings, contact = self._contact(
-            q, v, checked_probes, probe_prints, load_prints, load_forces, len(held)
-        )
-        done = self._work(p1, contact, q, q0) if work and self.hold == "zoh" else None
-        applied: list[tuple[Any, float]] = [*zip(load_prints, load_forces, strict=True)]
-        for fp, reading in zip(probe_prints, readings, strict=True):
-            if fp is not None and reading.force != 0.0:
-                applied.append((fp, -reading.force))
-        _require_finite(q, v, readings)
-        q.flags.writeable = v.flags.writeable = p1.flags.writeable = False
-        index = state.step + 1
-        new = ModalState(index, index * self._dt, q, v, p1, tuple(applied), self._owner)
-        probed = len(readings) - len(held)
-        grasped = tuple(_grasp_reading(r) for r in readings[probed:])
-        return StepResult(new, self.frame(new) if frame else None, readings[:probed], done, grasped)
+        return q, v, p1
+
+    def _tool_contact(
+        self,
+        q: FloatArray,
+        v: FloatArray,
+        points: ToolPoints,
+        prints: Sequence[FootprintT],
+        loads: Sequence[tuple[Any, float]],
+    ) -> tuple[FloatArray, FloatArray]:
+        """Solve the tools' points' contact, apply it to q and v in place; the points' forces
+        (>= 0, along -axis) and their displacements at the step's end."""
+        if not points.count:
+            return np.zeros(0), np.zeros(0)
+        basis, tr = self.basis, self.transition
+        free = basis.point_frame(points.indices, q, loads)
+        compliance = basis.point_compliance(points.indices, prints, tr.zoh_q)
+        forces = solve_points(compliance, free - points.surface)
+        pressing = [(fp, float(f)) for fp, f in zip(prints, forces, strict=True) if f > 0.0]
+        if pressing:
+            total = self._modal_force([fp for fp, _ in pressing], [f for _, f in pressing])
+            q -= tr.zoh_q * total
+            v -= tr.zoh_v * total
+        return forces, free - compliance @ forces
 
     def frame(self, state: ModalState) -> FloatArray:
         """Displacements on the lattice (x-major, flattened): stepped modes plus correction."""
@@ -332,6 +429,10 @@ class ModalStepper(Generic[FootprintT]):
             "max_depth": MAX_DEPTH,
             "max_radius": MAX_RADIUS,
             "max_shape_value": MAX_SHAPE_VALUE,
+            "max_tools": MAX_TOOLS,
+            "max_tool_points": MAX_TOOL_POINTS,
+            "tool_kinds": list(TOOL_KINDS),
+            "tool_force_radius": self.basis.tool_force_radius,
         }
 
     # -- the parts of a step ----------------------------------------------------------------

@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol, TypeVar
+from typing import Any, Protocol, TypeVar, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,6 +36,7 @@ __all__ = ["FootprintModel", "StaticCorrection", "TableFootprint", "TabulatedBas
 
 FloatArray = NDArray[np.float64]
 _Array = TypeVar("_Array", bound=NDArray[Any])
+_CLAMPED = 1e-9  # a lattice point whose modes all move less than this share of the largest
 
 
 @dataclass(frozen=True)
@@ -112,6 +113,9 @@ class TabulatedBasis:
         if mask.shape != w.shape:
             raise InvalidEngineSettings(f"kept must mark {w.size} modes, got {mask.size}")
         self._lattice = tuple(lattice)
+        # a clamped node's interpolated mode values are rounding (1e-20 of the largest)
+        largest = np.abs(table).max(axis=1, initial=0.0)
+        self._movable = frozen(largest > _CLAMPED * largest.max(initial=0.0))
         self._shapes = frozen(table * mask)  # modes not stepped carry nothing here
         w.setflags(write=False)
         self._modes = ModeSet((w.size,), w, frozen(mask))
@@ -120,6 +124,7 @@ class TabulatedBasis:
         self._inverse = frozen(np.linalg.pinv(table[:, mask]))  # least squares, kept modes
         self._description = dict(description or {"basis": "tabulated"})
         self._held_bytes = int(held_bytes)
+        self._coordinates = frozen(_grid(self._lattice, self._description))
 
     @property
     def spatial_dims(self) -> int:
@@ -149,6 +154,25 @@ class TabulatedBasis:
     def engine_bytes(self) -> int:
         return self.memory_bytes
 
+    @property
+    def lattice_coordinates(self) -> FloatArray:
+        """The uniform lattice over the description's ``lower`` .. ``upper`` (the unit box
+        without them)."""
+        return self._coordinates
+
+    @property
+    def movable(self) -> NDArray[np.bool_]:
+        """Lattice points some mode moves (not clamped, inside the domain)."""
+        return self._movable
+
+    @property
+    def tool_force_radius(self) -> float | None:
+        """The smallest footprint radius the tables carry (0: point forces, a plate's)."""
+        radii = self._description.get("radii")
+        if not isinstance(radii, list) or not radii:
+            return None
+        return float(min(radii))
+
     def contains(self, at: tuple[float, ...]) -> bool:
         return self._footprints.contains(at)
 
@@ -156,7 +180,12 @@ class TabulatedBasis:
         return {**self._description, "static_correction": self.static_correction}
 
     def footprints(
-        self, loads: Sequence[Load], probes: Sequence[Probe], budget: StepBudget
+        self,
+        loads: Sequence[Load],
+        probes: Sequence[Probe],
+        budget: StepBudget,
+        *,
+        tool_points: bool = False,
     ) -> tuple[list[TableFootprint], list[TableFootprint | None]]:
         inside = [pr for pr in probes if self.contains(pr.at)]
         budget.check(
@@ -194,6 +223,29 @@ class TabulatedBasis:
                     values = values + force * self._correction.field(footprint)
         return values
 
+    def point_frame(
+        self,
+        points: NDArray[np.intp],
+        q: FloatArray,
+        applied: Sequence[tuple[TableFootprint, float]],
+    ) -> FloatArray:
+        values = np.asarray(self._shapes[points] @ q)
+        if self._correction is not None:
+            for footprint, force in applied:
+                if force != 0.0:
+                    values = values + force * self._correction.field(footprint)[points]
+        return values
+
+    def point_compliance(
+        self, points: NDArray[np.intp], prints: Sequence[TableFootprint], gain: FloatArray
+    ) -> FloatArray:
+        forces = np.stack([fp.modal_force for fp in prints], axis=1)
+        compliance = self._shapes[points] @ (gain[:, None] * forces)
+        if self._correction is not None:
+            for j, footprint in enumerate(prints):
+                compliance[:, j] += self._correction.field(footprint)[points]
+        return np.asarray(compliance)
+
     def project(self, shape: ArrayLike, what: str) -> tuple[FloatArray, float]:
         values = checked_shape(shape, self._lattice, what)
         q = np.zeros(self._modes.omega.size)
@@ -212,6 +264,14 @@ class TabulatedBasis:
         s *= self._modes.kept
         s.setflags(write=False)
         return TableFootprint(item.at, item.radius, s)
+
+
+def _grid(lattice: tuple[int, ...], description: Mapping[str, object]) -> FloatArray:
+    """The uniform lattice's points, (points, dims), x-major."""
+    lower = np.asarray(cast(ArrayLike, description.get("lower", [0.0] * len(lattice))), float)
+    upper = np.asarray(cast(ArrayLike, description.get("upper", [1.0] * len(lattice))), float)
+    axes = [np.linspace(a, b, n) for a, b, n in zip(lower, upper, lattice, strict=True)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(lattice))
 
 
 def frozen(array: _Array) -> _Array:

@@ -17,7 +17,7 @@ from membrane_models import fem
 from membrane_models.fem.cache import TableCache, cached_tables
 from membrane_models.fem.live_basis import fem_basis
 from membrane_models.fem.tables import LiveTables, footprint_loads, live_tables
-from membrane_models.live import Grasp, InvalidLoad, InvalidProbe, Load, Probe
+from membrane_models.live import Grasp, InvalidLoad, InvalidProbe, Load, Probe, Tool
 from membrane_models.live.stepper import ModalStepper
 
 SIDE = 0.05
@@ -187,3 +187,24 @@ def test_a_grasp_lifting_the_patch_needs_its_static_stiffness_upward(plate: Plat
     assert held.displacement == pytest.approx(height, rel=1e-9)
     assert held.force == pytest.approx(stiffness * height, rel=1e-3)
     assert result.probes[0].force == 0.0
+
+
+def test_a_rigid_tool_on_the_plate_keeps_every_node_under_it_at_or_below_its_face(
+    plate: Plate,
+) -> None:
+    """A flat tool over the centre node, pressed slowly and held: the node never rises above
+    its face, and the force settles (skin-patch's point tables check it against the point
+    probe: tests/server/test_tissue_scenes.py)."""
+    _, _, tables = plate
+    engine = ModalStepper(fem_basis(tables), 1e-3, damping=0.5)
+    node = 4 * 9 + 4  # the centre of the 9 x 9 lattice
+    at = tuple(float(x) for x in engine.basis.lattice_coordinates[node])
+    depth, state, forces = 1e-4, engine.start().state, []
+    for k in range(400):
+        d = depth * min(1.0, (k + 1) / 200)
+        result = engine.step(state, tools=[Tool("cylinder", at, d, 1e-3)])
+        assert result.frame is not None and result.frame[node] <= -d * (1 - 1e-12)
+        assert result.tools[0].points == 1
+        forces.append(result.tools[0].force)
+        state = result.state
+    assert forces[-1] > 0.0 and forces[-50] == pytest.approx(forces[-1], rel=1e-4)
