@@ -310,10 +310,11 @@ class ModalStepper(Generic[FootprintT]):
         load_forces = [ld.force for ld in checked_loads]
         q, v, p1 = self._free_step(state, load_prints, load_forces)
         applied: list[tuple[Any, float]] = [*zip(load_prints, load_forces, strict=True)]
-        forces, displacement = self._tool_contact(q, v, points, prints, applied)
-        pressing = [(fp, float(f)) for fp, f in zip(prints, forces, strict=True) if f > 0.0]
-        contact = [(basis.modal_force(fp), f) for fp, f in pressing]
-        done = self._work(p1, contact, q, state.q) if work and self.hold == "zoh" else None
+        forces, displacement, pressing = self._tool_contact(q, v, points, prints, applied)
+        done = None
+        if work and self.hold == "zoh":
+            contact = [(basis.modal_force(fp), f) for fp, f in pressing]
+            done = self._work(p1, contact, q, state.q)
         applied += [(fp, -f) for fp, f in pressing]
         readings = tool_readings(checked_tools, points, forces, displacement)
         _require_finite(q, v, ())
@@ -350,11 +351,12 @@ class ModalStepper(Generic[FootprintT]):
         points: ToolPoints,
         prints: Sequence[FootprintT],
         loads: Sequence[tuple[Any, float]],
-    ) -> tuple[FloatArray, FloatArray]:
+    ) -> tuple[FloatArray, FloatArray, list[tuple[FootprintT, float]]]:
         """Solve the tools' points' contact, apply it to q and v in place; the points' forces
-        (>= 0, along -axis) and their displacements at the step's end."""
+        (>= 0, along -axis), their displacements at the step's end, and the footprints that
+        push with their forces."""
         if not points.count:
-            return np.zeros(0), np.zeros(0)
+            return np.zeros(0), np.zeros(0), []
         basis, tr = self.basis, self.transition
         free = basis.point_frame(points.indices, q, loads)
         compliance = basis.point_compliance(points.indices, prints, tr.zoh_q)
@@ -364,7 +366,7 @@ class ModalStepper(Generic[FootprintT]):
             total = self._modal_force([fp for fp, _ in pressing], [f for _, f in pressing])
             q -= tr.zoh_q * total
             v -= tr.zoh_v * total
-        return forces, free - compliance @ forces
+        return forces, free - compliance @ forces, pressing
 
     def frame(self, state: ModalState) -> FloatArray:
         """Displacements on the lattice (x-major, flattened): stepped modes plus correction."""
