@@ -58,14 +58,17 @@ class CentreGrid:
         """The 4 x 4 nodes around ``at`` and their cubic B-spline weights, (16,) x-major."""
         ix, wx = self._axis(at[0], 0)
         iy, wy = self._axis(at[1], 1)
-        weights = np.multiply.outer(wx, wy).reshape(16)
+        weights = np.array([a * b for a in wx for b in wy])
         return slice(ix - 1, ix + 3), slice(iy - 1, iy + 3), weights
 
     def read(self, coefficients: FloatArray, at: Sequence[float]) -> FloatArray:
         """The interpolated value at ``at`` of a table whose first two axes are the grid's."""
-        sx, sy, weights = self.stencil(at)
-        block = coefficients[sx, sy]
-        return np.asarray(weights @ block.reshape(16, -1)).reshape(block.shape[2:])
+        ix, wx = self._axis(at[0], 0)
+        iy, wy = self._axis(at[1], 1)
+        block = coefficients[ix - 1 : ix + 3, iy - 1 : iy + 3]
+        # separable: the x weights, then the y weights (two small products, no 16-row copy)
+        along_x = np.array(wx) @ block.reshape(4, -1)
+        return np.asarray(np.array(wy) @ along_x.reshape(4, -1)).reshape(block.shape[2:])
 
     def read_pair(self, coefficients: FloatArray, a: Sequence[float], b: Sequence[float]) -> float:
         """The interpolated value at (a, b) of a table over two centres, (nx, ny, nx, ny)."""
@@ -74,16 +77,21 @@ class CentreGrid:
         block = coefficients[ax, ay, bx, by].reshape(16, 16)
         return float(wa @ block @ wb)
 
-    def _axis(self, value: float, axis: int) -> tuple[int, FloatArray]:
+    def _axis(self, value: float, axis: int) -> tuple[int, tuple[float, float, float, float]]:
+        # plain floats: a step reads a few tables, and numpy's call overhead would dominate
         u = (value - self.origin[axis]) / self.spacing
         base = min(max(math.floor(u), 1), self.shape[axis] - 3)
         t = u - base
         s = 1.0 - t
         t2 = t * t
         t3 = t2 * t
-        return base, np.array(
-            [s * s * s, 3.0 * t3 - 6.0 * t2 + 4.0, -3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0, t3]
-        ) * (1.0 / 6.0)
+        sixth = 1.0 / 6.0
+        return base, (
+            s * s * s * sixth,
+            (3.0 * t3 - 6.0 * t2 + 4.0) * sixth,
+            (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) * sixth,
+            t3 * sixth,
+        )
 
 
 def prefilter(values: FloatArray, axes: Sequence[int]) -> FloatArray:

@@ -39,14 +39,18 @@ class FemFootprints:
         extent = max(b - a for a, b in zip(tables.lower, tables.upper, strict=True))
         self._on_edge = 1e-12 * extent
         self._rectangular = _fills_its_box(tables.boundary, tables.lower, tables.upper)
+        self._radii = tuple(fp.radius for fp in tables.footprints)
 
     @property
     def radii(self) -> tuple[float, ...]:
-        return tuple(fp.radius for fp in self.tables.footprints)
+        return self._radii
 
     def index(self, radius: float) -> int | None:
         """Which radius's tables carry ``radius`` (None: none)."""
-        for i, known in enumerate(self.radii):
+        radii = self._radii
+        if radius in radii:  # the usual case, and the fast one (a step asks a few times)
+            return radii.index(radius)
+        for i, known in enumerate(radii):
             if math.isclose(radius, known, rel_tol=_RADIUS_MATCH):
                 return i
         return None

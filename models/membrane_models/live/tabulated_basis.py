@@ -119,6 +119,7 @@ class TabulatedBasis:
         self._shapes = frozen(table * mask)  # modes not stepped carry nothing here
         w.setflags(write=False)
         self._modes = ModeSet((w.size,), w, frozen(mask))
+        self._all_kept = bool(mask.all())
         self._footprints = footprints
         self._correction = correction
         self._inverse = frozen(np.linalg.pinv(table[:, mask]))  # least squares, kept modes
@@ -187,14 +188,14 @@ class TabulatedBasis:
         *,
         tool_points: bool = False,
     ) -> tuple[list[TableFootprint], list[TableFootprint | None]]:
-        inside = [pr for pr in probes if self.contains(pr.at)]
+        inside = [self.contains(pr.at) for pr in probes]
         budget.check(
-            table_step_cost(len(loads), len(inside), self._modes.omega.size, self._shapes.shape[0])
+            table_step_cost(len(loads), sum(inside), self._modes.omega.size, self._shapes.shape[0])
         )
         load_prints = [self._footprint(ld, "load", i) for i, ld in enumerate(loads)]
         probe_prints = [
-            self._footprint(pr, "probe", i) if self.contains(pr.at) else None
-            for i, pr in enumerate(probes)
+            self._footprint(pr, "probe", i) if within else None
+            for i, (pr, within) in enumerate(zip(probes, inside, strict=True))
         ]
         return load_prints, probe_prints
 
@@ -261,7 +262,8 @@ class TabulatedBasis:
             error = InvalidLoad if kind == "load" else InvalidProbe
             raise error(f"{kind} {index}: {reason}")
         s = np.array(self._footprints.modal_force(item.at, item.radius), dtype=np.float64)
-        s *= self._modes.kept
+        if not self._all_kept:
+            s *= self._modes.kept
         s.setflags(write=False)
         return TableFootprint(item.at, item.radius, s)
 
