@@ -260,7 +260,7 @@ def test_a_reload_keeps_open_sessions_on_their_engine(membrane_live: ServedScene
 
 def test_the_wire_session_follows_the_engine_exactly(membrane_live: ServedScene) -> None:
     """What a session serves is the engine's own answer, to float32 rounding of the frame."""
-    engine = ModalEngine(make_problem("membrane-forced"), (20, 20), 0.001, damping=0.02)
+    engine = ModalEngine(make_problem("membrane-forced"), (20, 20), 0.001, damping=0.02, modes=60)
     state = engine.start().state
     plan = [([Load((0.3, 0.6), 0.02 * (k % 7), 0.05)], [PROBE]) for k in range(50)]
     with _client(membrane_live) as client, client.session() as session:
