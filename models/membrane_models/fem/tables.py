@@ -43,6 +43,7 @@ from membrane_models.fem.sampling import sampler
 from membrane_models.live.tabulated_basis import frozen
 
 __all__ = [
+    "MAX_BUILD_BYTES",
     "FootprintTables",
     "LiveTables",
     "footprint_loads",
@@ -61,6 +62,11 @@ _CROSS_CENTRES_PER_RADIUS = 1.5
 # A point force's tables take the grids of a footprint this many elements wide.
 _POINT_RADIUS_PER_ELEMENT = 0.75
 _CHUNK = 128  # centres per block when building load vectors
+# The most the build's largest arrays may take (dense load vectors and solves over the centres,
+# the compliance tables): the grids go as (box / radius)^2, so a small radius on a large shape
+# would otherwise take all of a machine's memory before failing (1.25 mm on a 100 mm disk:
+# an estimated 28 GiB; a build was stopped at 20 GB resident). The study's skin patch: 0.26 GiB.
+MAX_BUILD_BYTES = 4 * 2**30
 _SOLVE_CHUNK = 1024  # centres per block of static-correction solves
 
 
@@ -161,6 +167,7 @@ def live_tables(
     shapes = np.zeros((xy.shape[0], modes.count))
     if inside.any():
         shapes[inside] = sampler(system, xy[inside]) @ modes.shapes
+    _require_affordable(system, modes, lower, upper, xy.shape[0], radii, static_correction)
     residual = _Residual(system, modes, xy, inside) if static_correction else None
     built = [_footprint_tables(system, modes, float(r), lower, upper, residual) for r in radii]
     cross = {}
@@ -315,6 +322,55 @@ def _footprint_tables(
     own_table = prefilter(own.reshape(own_grid.shape), (0, 1))
     tables = FootprintTables(radius, grid, modal_force, own_table, field, cross_grid, own_grid)
     return tables, half, weighted
+
+
+def build_bytes(
+    system: System,
+    modes: Modes,
+    lower: tuple[float, float],
+    upper: tuple[float, float],
+    points: int,
+    radii: Sequence[float],
+    static_correction: bool = True,
+) -> int:
+    """About what the build's largest arrays take at once (bytes): per radius, the load vectors
+    over its centres (DOFs x centres, and twice over the coarser centres with the correction:
+    loads and half solves) and its field on the lattice; the compliance tables over pairs."""
+    total, cross_sizes = 0, []
+    for radius in radii:
+        scale = radius if radius > 0.0 else system.domain.size * _POINT_RADIUS_PER_ELEMENT
+        if not (math.isfinite(scale) and scale > 0.0):
+            continue  # refused with its reason by _footprint_tables
+        fine = math.prod(CentreGrid.covering(lower, upper, scale / _CENTRES_PER_RADIUS).shape)
+        total += system.dofs * fine + modes.count * fine
+        if static_correction:
+            shape = CentreGrid.covering(lower, upper, scale / _CROSS_CENTRES_PER_RADIUS).shape
+            coarse = math.prod(shape)
+            total += 2 * system.dofs * coarse + points * coarse
+            cross_sizes.append(coarse)
+    pairs = sum(a * b for i, a in enumerate(cross_sizes) for b in cross_sizes[i:])
+    return 8 * (total + 2 * pairs + system.dofs * points)
+
+
+def _require_affordable(
+    system: System,
+    modes: Modes,
+    lower: tuple[float, float],
+    upper: tuple[float, float],
+    points: int,
+    radii: Sequence[float],
+    static_correction: bool,
+) -> None:
+    needed = build_bytes(system, modes, lower, upper, points, radii, static_correction)
+    if needed > MAX_BUILD_BYTES:
+        sizes = ", ".join(f"{r * 1e3:.6g} mm" if r > 0.0 else "points" for r in radii)
+        raise InvalidSolve(
+            f"these live tables would take about {needed / 2**30:.1f} GiB to build (at most "
+            f"{MAX_BUILD_BYTES / 2**30:.0f} GiB): footprints of {sizes} are small for a domain "
+            f"of {(upper[0] - lower[0]) * 1e3:.6g} x {(upper[1] - lower[1]) * 1e3:.6g} mm "
+            "(their tables' centres go as (size / radius)^2): give larger radii, a smaller "
+            "domain or a coarser mesh"
+        )
 
 
 def _own(half: FloatArray, weighted: FloatArray) -> FloatArray:

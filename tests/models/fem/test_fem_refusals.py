@@ -15,6 +15,9 @@ from fem_cases import NU, UNIT_PLATE
 
 from membrane_errors import UserError
 from membrane_models import fem
+from membrane_models.fem.assembly import assemble
+from membrane_models.fem.modal import modes as lowest_modes
+from membrane_models.fem.tables import MAX_BUILD_BYTES, build_bytes, live_tables
 
 SQUARE = fem.rectangle(1.0, 1.0, 0.25)
 
@@ -166,3 +169,17 @@ def test_the_fem_room_imports_neither_torch_nor_the_learned_models() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, check=False
     )
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_live_tables_too_large_to_build_are_refused_before_the_build() -> None:
+    """A footprint small for its domain: its tables' centres go as (size / radius)^2, so a
+    0.1 mm footprint on a 50 mm disk would need hundreds of GiB; refused at once, saying so."""
+    system = assemble(fem.disk(0.05, 0.01), fem.Membrane(100.0, 1.0), "clamped")
+    modes = lowest_modes(system, 4)
+    box = ((-0.05, -0.05), (0.05, 0.05))
+    assert build_bytes(system, modes, *box, 400, [1e-4]) > MAX_BUILD_BYTES
+    assert build_bytes(system, modes, *box, 400, [5e-3]) < MAX_BUILD_BYTES  # a usable radius
+    with pytest.raises(fem.InvalidSolve) as error:
+        live_tables(system, modes, (20, 20), [1e-4])
+    message = _refused(error)
+    assert "GiB to build" in message and "0.1 mm" in message and "100 x 100 mm" in message
