@@ -167,7 +167,9 @@ def live_tables(
     shapes = np.zeros((xy.shape[0], modes.count))
     if inside.any():
         shapes[inside] = sampler(system, xy[inside]) @ modes.shapes
-    _require_affordable(system, modes, lower, upper, xy.shape[0], radii, static_correction)
+    needed = build_bytes(system, modes, lower, upper, xy.shape[0], radii, static_correction)
+    if needed > MAX_BUILD_BYTES:
+        raise _too_large(needed, radii, lower, upper)
     residual = _Residual(system, modes, xy, inside) if static_correction else None
     built = [_footprint_tables(system, modes, float(r), lower, upper, residual) for r in radii]
     cross = {}
@@ -299,10 +301,7 @@ def _footprint_tables(
             "a point force on a membrane has an infinite displacement under it (logarithmic): "
             "give a footprint radius > 0"
         )
-    # A point's tables follow the mesh (its modes' values vary on the element's scale).
-    scale = radius if radius > 0.0 else system.domain.size * _POINT_RADIUS_PER_ELEMENT
-    grid = CentreGrid.covering(lower, upper, scale / _CENTRES_PER_RADIUS)
-    cross_grid = CentreGrid.covering(lower, upper, scale / _CROSS_CENTRES_PER_RADIUS)
+    grid, cross_grid = _centre_grids(system, radius, lower, upper)
     loads = footprint_loads(system, radius, grid.nodes())
     forces = modes.shapes.T @ loads  # (modes, centres)
     nx, ny = grid.shape
@@ -324,6 +323,16 @@ def _footprint_tables(
     return tables, half, weighted
 
 
+def _centre_grids(
+    system: System, radius: float, lower: tuple[float, float], upper: tuple[float, float]
+) -> tuple[CentreGrid, CentreGrid]:
+    """A radius's grid of centres (modal forces, fields) and its coarser one (compliance)."""
+    # A point's tables follow the mesh (its modes' values vary on the element's scale).
+    scale = radius if radius > 0.0 else system.domain.size * _POINT_RADIUS_PER_ELEMENT
+    grid = CentreGrid.covering(lower, upper, scale / _CENTRES_PER_RADIUS)
+    return grid, CentreGrid.covering(lower, upper, scale / _CROSS_CENTRES_PER_RADIUS)
+
+
 def build_bytes(
     system: System,
     modes: Modes,
@@ -338,39 +347,30 @@ def build_bytes(
     loads and half solves) and its field on the lattice; the compliance tables over pairs."""
     total, cross_sizes = 0, []
     for radius in radii:
-        scale = radius if radius > 0.0 else system.domain.size * _POINT_RADIUS_PER_ELEMENT
-        if not (math.isfinite(scale) and scale > 0.0):
+        if not (math.isfinite(radius) and radius >= 0.0):
             continue  # refused with its reason by _footprint_tables
-        fine = math.prod(CentreGrid.covering(lower, upper, scale / _CENTRES_PER_RADIUS).shape)
+        grid, cross_grid = _centre_grids(system, radius, lower, upper)
+        fine = math.prod(grid.shape)
         total += system.dofs * fine + modes.count * fine
         if static_correction:
-            shape = CentreGrid.covering(lower, upper, scale / _CROSS_CENTRES_PER_RADIUS).shape
-            coarse = math.prod(shape)
+            coarse = math.prod(cross_grid.shape)
             total += 2 * system.dofs * coarse + points * coarse
             cross_sizes.append(coarse)
     pairs = sum(a * b for i, a in enumerate(cross_sizes) for b in cross_sizes[i:])
     return 8 * (total + 2 * pairs + system.dofs * points)
 
 
-def _require_affordable(
-    system: System,
-    modes: Modes,
-    lower: tuple[float, float],
-    upper: tuple[float, float],
-    points: int,
-    radii: Sequence[float],
-    static_correction: bool,
-) -> None:
-    needed = build_bytes(system, modes, lower, upper, points, radii, static_correction)
-    if needed > MAX_BUILD_BYTES:
-        sizes = ", ".join(f"{r * 1e3:.6g} mm" if r > 0.0 else "points" for r in radii)
-        raise InvalidSolve(
-            f"these live tables would take about {needed / 2**30:.1f} GiB to build (at most "
-            f"{MAX_BUILD_BYTES / 2**30:.0f} GiB): footprints of {sizes} are small for a domain "
-            f"of {(upper[0] - lower[0]) * 1e3:.6g} x {(upper[1] - lower[1]) * 1e3:.6g} mm "
-            "(their tables' centres go as (size / radius)^2): give larger radii, a smaller "
-            "domain or a coarser mesh"
-        )
+def _too_large(
+    needed: int, radii: Sequence[float], lower: tuple[float, float], upper: tuple[float, float]
+) -> InvalidSolve:
+    sizes = ", ".join(f"{r * 1e3:.6g} mm" if r > 0.0 else "points" for r in radii)
+    return InvalidSolve(
+        f"these live tables would take about {needed / 2**30:.1f} GiB to build (at most "
+        f"{MAX_BUILD_BYTES / 2**30:.0f} GiB): footprints of {sizes} are small for a domain "
+        f"of {(upper[0] - lower[0]) * 1e3:.6g} x {(upper[1] - lower[1]) * 1e3:.6g} mm "
+        "(their tables' centres go as (size / radius)^2): give larger radii, a smaller "
+        "domain or a coarser mesh"
+    )
 
 
 def _own(half: FloatArray, weighted: FloatArray) -> FloatArray:
