@@ -8,7 +8,8 @@ Physics as small weak forms assembled with scikit-fem, one job per module:
 - ``models``: ``Membrane`` and ``Plate``; ``damping``: ``Damping``;
 - ``forms``: the weak forms; ``boundary``: clamped / simply supported / free per part, the
   constrained space, the rigid-body check; ``assembly``: ``assemble`` -> ``System``;
-- ``static``: point, pressure and patch loads, ``solve``; ``modal``: ``modes``;
+- ``static``: point, pressure and patch loads, ``solve``; ``contact``: ``press``, rigid tools
+  pressed in, the exact static contact on the mesh's vertices; ``modal``: ``modes``;
   ``sampling``: ``sample`` a field at points; ``stress``: von Mises at a point.
 
 Bad input raises a ``FemError`` (a ``membrane_errors.UserError``). Nothing here imports torch.
@@ -16,6 +17,7 @@ Bad input raises a ``FemError`` (a ``membrane_errors.UserError``). Nothing here 
 
 from membrane_models.fem.assembly import System, assemble
 from membrane_models.fem.boundary import CONDITIONS, Condition
+from membrane_models.fem.contact import Pressed, press
 from membrane_models.fem.damping import Damping
 from membrane_models.fem.errors import (
     FemError,
@@ -68,6 +70,7 @@ __all__ = [
     "Modes",
     "OutsideDomain",
     "Plate",
+    "Pressed",
     "RigidBodyModes",
     "SurfaceStress",
     "System",
@@ -80,6 +83,7 @@ __all__ = [
     "patch_load",
     "point_load",
     "polygon",
+    "press",
     "pressure_load",
     "read_mesh",
     "rectangle",

@@ -2,9 +2,9 @@
 constrained space.
 
 ``assemble(domain, model, supports)`` picks the element (a membrane: P2, isoparametric on the
-curved parts, whose edge midpoints sit on the exact curve; a plate: Argyris, or Morley for
-convergence studies only; ``elements``: scikit-fem's, evaluated in local coordinates),
-assembles the weak forms of ``forms`` and the constrained space of
+curved parts, whose edge midpoints sit on the exact curve, or P1 for ``contact``'s presses; a
+plate: Argyris, or Morley for convergence studies only; ``elements``: scikit-fem's, evaluated
+in local coordinates), assembles the weak forms of ``forms`` and the constrained space of
 ``boundary`` (refusing rigid-body modes there, before any solve), and returns a ``System``.
 
 Units: SI throughout. A DOF vector ``u`` holds the element's DOFs (w in m; Argyris's slopes
@@ -22,7 +22,7 @@ from typing import Any, Literal
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
-from skfem import Basis, ElementTriP2, MeshTri2
+from skfem import Basis, ElementTriP1, ElementTriP2, MeshTri2
 
 from membrane_models.fem import forms
 from membrane_models.fem.boundary import Condition, constrain, resolve_supports
@@ -33,10 +33,11 @@ from membrane_models.fem.models import Membrane, Model, Plate
 
 __all__ = ["ELEMENTS", "ElementName", "System", "assemble"]
 
-ElementName = Literal["argyris", "morley", "p2"]
+ElementName = Literal["argyris", "morley", "p1", "p2"]
 ELEMENTS: dict[str, tuple[type, int]] = {  # element class, quadrature order
     "argyris": (LocalArgyris, 10),
     "morley": (LocalMorley, 4),
+    "p1": (ElementTriP1, 2),
     "p2": (ElementTriP2, 6),
 }
 FloatArray = NDArray[np.float64]
@@ -102,15 +103,19 @@ def assemble(
         supports: part -> "clamped" / "simply_supported" / "free" (unnamed parts are free), or
             one condition for every part. A membrane carries no moment: clamped and simply
             supported both fix w.
-        element: "argyris" (a plate's default) or "morley" for a plate, "p2" for a membrane.
+        element: "argyris" (a plate's default) or "morley" for a plate, "p2" (default) or
+            "p1" (straight triangles, for ``contact.press``) for a membrane.
         exact_frame: a curved part's conditions in its exact frame (``boundary``).
     """
     conditions = resolve_supports(domain, supports)
     if isinstance(model, Membrane):
         kind = element or "p2"
-        if kind != "p2":
-            raise InvalidModel(f"a membrane is assembled on p2 triangles, not {kind!r}")
-        basis = Basis(_curved_mesh(domain), ElementTriP2(), intorder=ELEMENTS["p2"][1])
+        if kind == "p2":
+            basis = Basis(_curved_mesh(domain), ElementTriP2(), intorder=ELEMENTS["p2"][1])
+        elif kind == "p1":  # straight triangles: the contact reference's (``contact``)
+            basis = Basis(domain.mesh, ElementTriP1(), intorder=ELEMENTS["p1"][1])
+        else:
+            raise InvalidModel(f"a membrane is assembled on p2 (or p1) triangles, not {kind!r}")
         motions, what = 1, "membrane"
     elif isinstance(model, Plate):
         kind = element or "argyris"

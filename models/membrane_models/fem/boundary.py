@@ -95,7 +95,7 @@ def constrain(
     what: str = "plate",
 ) -> Constraints:
     """The constrained space of ``basis`` (its element named ``element``: "argyris", "morley"
-    or "p2") under ``supports``; ``motions`` rigid motions to refuse (0, 1: constants, 3:
+    "p1" or "p2") under ``supports``; ``motions`` rigid motions to refuse (0, 1: constants, 3:
     affine). Raises ``RigidBodyModes`` if one survives the constraints."""
     mesh = domain.mesh
     held = {p: c for p, c in supports.items() if c != "free"}
@@ -122,7 +122,7 @@ def constrain(
             fixed.append(basis.facet_dofs[0, every])
             middle = 0.5 * (scaled[:, mesh.facets[0, every]] + scaled[:, mesh.facets[1, every]])
             checks.append(np.column_stack([np.ones(every.size), middle.T]))
-        else:  # morley: a clamped edge's normal derivative
+        elif element == "morley":  # a clamped edge's normal derivative
             clamped = _concat([facets[p] for p, c in held.items() if c == "clamped"])
             fixed.append(basis.facet_dofs[0, clamped])
             checks.append(np.column_stack([np.zeros(clamped.size), *_normals(mesh, clamped)]))

@@ -240,4 +240,3 @@ def _tables(meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray]) -> LiveTa
         footprints,
         cross,
     )
-

@@ -423,4 +423,3 @@ def _inside_mesh(system: System, xy: FloatArray) -> NDArray[np.bool_]:
     """Which points lie on the mesh (points on its boundary count)."""
     extent = float(np.ptp(system.domain.mesh.p, axis=1).max())
     return inside_boundary(xy, boundary_segments(system), 1e-12 * extent)
-

@@ -36,3 +36,21 @@ def navier(
     shape = np.sin(m * math.pi * x / a) * np.sin(n * math.pi * y / b)
     moment = amp * shape * d * math.pi**2 * ((m / a) ** 2 + plate.poisson * (n / b) ** 2)
     return float((amp * shape).sum()), float(moment.sum())
+
+
+def polar_disk(radii: np.ndarray, spokes: int) -> fem.Domain:
+    """A disk meshed on rings: a vertex at the centre, ``spokes`` vertices on each circle of
+    ``radii`` (increasing, the last the rim), quads between rings cut in two. Its edges follow
+    every ring, so a tool's rim on a ring is resolved exactly."""
+    theta = 2 * math.pi * np.arange(spokes) / spokes
+    circle = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    points = np.concatenate([np.zeros((1, 2)), *(r * circle for r in radii)])
+    j = np.arange(spokes)
+    after = (j + 1) % spokes
+    triangles = [np.stack([np.zeros(spokes, dtype=int), 1 + j, 1 + after], axis=1)]
+    for ring in range(len(radii) - 1):
+        inner, outer = 1 + ring * spokes, 1 + (ring + 1) * spokes
+        triangles.append(np.stack([inner + j, outer + j, outer + after], axis=1))
+        triangles.append(np.stack([inner + j, outer + after, inner + after], axis=1))
+    rim = fem.Circle((0.0, 0.0), float(radii[-1]))
+    return fem.from_triangles(points, np.concatenate(triangles), curves={"boundary": rim})
