@@ -100,6 +100,7 @@ def test_animate_a_film_to_gif(membrane_server: Server, tmp_path: Path) -> None:
     assert _frames(out) == 11  # 1 s at 10 frames per second, both ends
 
 
+@pytest.mark.slow
 def test_animate_a_poke_on_a_live_scene_to_gif(live_server: Server, tmp_path: Path) -> None:
     out = tmp_path / "poke.gif"
     argv = ["animate", "--connect", live_server.address, "--scene", "rope-live"]

@@ -95,6 +95,7 @@ def test_runs_are_deterministic_for_a_seed() -> None:
     assert [h["residual"] for h in a] != [h["residual"] for h in c]
 
 
+@pytest.mark.slow
 def test_checkpoint_is_plain_data_and_resumes(tmp_path: Path) -> None:
     config = _tiny("string-forced", iterations=40, lbfgs_fraction=0.0)
     full = train(config, progress=False)

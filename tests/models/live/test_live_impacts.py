@@ -66,6 +66,7 @@ def test_the_served_scene_steps_the_modes_checked_here() -> None:
     assert load_scene("membrane-live").live.options["modes"] == 60  # type: ignore[union-attr]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("at", PLACES)
 def test_a_sudden_press_matches_the_all_modes_reference(at: tuple[float, float]) -> None:
     assert _worst_force_error(60, at) < TOLERANCE

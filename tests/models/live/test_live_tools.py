@@ -94,6 +94,7 @@ def test_a_point_under_two_tools_takes_the_lower_surface() -> None:
     assert _penetration(engine, [deep], results[-1].frame) <= ROUNDING * 0.004  # type: ignore[arg-type]
 
 
+@pytest.mark.slow
 def test_a_flat_punch_on_the_string_needs_the_kinked_strings_force() -> None:
     """A flat segment [a - w, a + w] held at depth d, settled: the string is straight from the
     clamps to the segment's ends, F = T d (1 / (a - w) + 1 / (1 - a - w))."""
