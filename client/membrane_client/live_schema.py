@@ -249,16 +249,33 @@ class ProbeReading(NamedTuple):
     gap: float  # >= 0, 0 in contact
     in_contact: bool
     outside: bool  # the tip's centre is outside the domain: nothing touched
+    # The step's one-step compliance under the tip (displacement per unit contact force, held
+    # over the step; NaN from a server that does not send it or when ``outside``): without the
+    # contact the tip would have seen ``displacement + compliance * force``, so a force for any
+    # other depth d of the same step is max(0, (that + d) / compliance) (``haptics``).
+    compliance: float = math.nan
+    # The static compliance under the tip (1 / the tissue's stiffness there, settled).
+    static_compliance: float = math.nan
+    # With ``lookahead``: the tissue's displacement under the tip at the end of the next step
+    # if that step took no contact force (its loads those of this step), so that the next step's
+    # force at depth d is max(0, (next_free + d) / compliance) (``haptics``); else NaN.
+    next_free: float = math.nan
 
     def to_wire(self) -> dict[str, Any]:
-        """The reading's map in a step or read reply's ``probes``."""
-        return {
+        """The reading's map in a step or read reply's ``probes`` (``next_free`` only when it
+        was asked for)."""
+        wire = {
             "force": self.force,
             "displacement": self.displacement,
             "gap": self.gap,
             "in_contact": self.in_contact,
             "outside": self.outside,
+            "compliance": self.compliance,
+            "static_compliance": self.static_compliance,
         }
+        if not math.isnan(self.next_free):
+            wire["next_free"] = self.next_free
+        return wire
 
     @classmethod
     def from_wire(cls, item: Any) -> ProbeReading:
@@ -272,9 +289,14 @@ class ProbeReading(NamedTuple):
             if type(in_contact) is not bool or type(outside) is not bool:
                 raise TypeError("in_contact and outside must be booleans")
             numbers = _reply_number(force), _reply_number(displacement), _reply_number(gap)
+            extra = [_reply_number(item.get(key, math.nan)) for key in _READING_EXTRAS]
         except (KeyError, TypeError) as exc:
             raise ProtocolError(f"malformed probe reading: {exc!r}") from None
-        return cls(*numbers, in_contact, outside)
+        return cls(*numbers, in_contact, outside, *extra)
+
+
+# A probe reading's fields added within v1, NaN from a server that does not send them.
+_READING_EXTRAS = ("compliance", "static_compliance", "next_free")
 
 
 class GraspReading(NamedTuple):

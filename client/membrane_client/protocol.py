@@ -156,6 +156,8 @@ class Request:
     frame: bool = True  # step: whether the reply carries the frame
     # step: refuse an item centred outside the domain (instead of "touches nothing")
     strict: bool = False
+    # step: each probe's reading also gives the next step's free displacement (``next_free``)
+    lookahead: bool = False
     initial: dict[str, Any] | None = None  # open: {displacement, velocity} arrays
     token: str | None = None  # live ops: the Session object's own token (re-sends carry it)
 
@@ -172,6 +174,8 @@ class Request:
             message["frame"] = False
         if self.strict:
             message["strict"] = True
+        if self.lookahead:
+            message["lookahead"] = True
         return encode(message)
 
     @classmethod
@@ -268,11 +272,16 @@ class Request:
             self._refuse(
                 ErrorCode.BAD_REQUEST, f"'frame' must be true or false, got {preview(frame)}"
             )
-        self.strict = strict = message.get("strict", False)
-        if type(strict) is not bool:
+        self.strict = self._flag(message, "strict")
+        self.lookahead = self._flag(message, "lookahead")
+
+    def _flag(self, message: dict[str, Any], key: str) -> bool:
+        value = message.get(key, False)
+        if type(value) is not bool:
             self._refuse(
-                ErrorCode.BAD_REQUEST, f"'strict' must be true or false, got {preview(strict)}"
+                ErrorCode.BAD_REQUEST, f"'{key}' must be true or false, got {preview(value)}"
             )
+        return bool(value)
 
     def _refuse(self, code: ErrorCode, message: str) -> NoReturn:
         raise RequestError(code, message, Request(self.op, self.id, self.session))

@@ -123,6 +123,7 @@ class Session:
         dtype: str = "<f4",
         grasps: Any = (),
         tools: Any = (),
+        lookahead: bool = False,
     ) -> LiveFrame:
         """Take step ``k`` under ``loads``, ``probes``, ``grasps`` and ``tools``
         (Load/Probe/Grasp/Tool or their maps; a grasp holds the tissue at its height,
@@ -132,7 +133,9 @@ class Session:
         ``strict``: an item centred outside the scene's domain is refused (a
         ``ServerError`` naming the domain's extent) instead of touching nothing. ``dtype``:
         the frame's element type, ``"<f4"`` or ``"<f8"`` (to check a surface beyond float32's
-        6e-8).
+        6e-8). ``lookahead``: each probe's reading also gives ``next_free``, the next step's
+        free displacement under it, from which a haptic loop renders that step's force at any
+        depth before it is taken (``membrane_client.haptics``; loads and probes only).
 
         Raises:
             StepLost: no reply on any retry; ``applied`` says whether the server took the step
@@ -145,6 +148,8 @@ class Session:
             fields["grasps"] = [_wire(item) for item in grasps]
         if tools:
             fields["tools"] = [_wire(item) for item in tools]
+        if lookahead:
+            fields["lookahead"] = True
         try:
             reply = self._request(Op.STEP, k=self.k, dtype=dtype, **fields)
         except Timeout as lost:

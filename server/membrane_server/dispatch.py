@@ -38,6 +38,7 @@ __all__ = ["Answer", "Dispatcher", "RequestError", "server_version"]
 
 logger = logging.getLogger(__name__)
 
+
 @functools.cache
 def server_version() -> str:
     """'membrane X.Y.Z', what ``membrane --version`` prints (read once: ``hello`` must stay

@@ -57,6 +57,7 @@ from membrane_models.live import (
     Tool,
     ToolReading,
 )
+from membrane_models.live.inputs import MAX_DEPTH
 from membrane_server.engines import build_engine
 from membrane_server.sessions import LiveSession, Sent, SessionTable
 
@@ -129,7 +130,15 @@ def _tool_reading(engine_reading: ToolReading) -> schema.ToolReading:
 def _reading(engine_reading: ProbeReading) -> schema.ProbeReading:
     """An engine's probe reading in the schema's form (its wire map is ``to_wire()``)."""
     r = engine_reading
-    return schema.ProbeReading(r.force, r.displacement, r.gap, r.in_contact, r.outside)
+    return schema.ProbeReading(
+        r.force,
+        r.displacement,
+        r.gap,
+        r.in_contact,
+        r.outside,
+        float(r.compliance),
+        float(r.static_compliance),
+    )
 
 
 def engine_inputs(
@@ -216,13 +225,18 @@ class LiveOps:
         if request.strict:
             _require_inside(engine, loads, probes, grasps, tools)
         held = _held(grasps, tools)
+        if request.lookahead and (grasps or tools):
+            raise RequestError(
+                ErrorCode.BAD_REQUEST, "'lookahead' is for steps of loads and probes only"
+            )
         try:
             result = engine.step(session.state, loads, probes, frame=request.frame, **held)
         except LiveError as exc:
             raise wire_error(exc) from None
+        ahead = _lookahead(engine, result.state, loads, probes) if request.lookahead else None
         session.apply(result)
         self.table.counts["steps"] += 1
-        fields = self._state_reply(request, session, result.frame).to_reply_fields()
+        fields = self._state_reply(request, session, result.frame, ahead=ahead).to_reply_fields()
         reply = encode(ok_reply(request.id, **fields))
         session.last_step = Sent(request.token, request.id, reply)
         return reply
@@ -259,19 +273,42 @@ class LiveOps:
         session: LiveSession,
         frame: np.ndarray | None,
         token: str | None = None,
+        ahead: list[float] | None = None,
     ) -> LiveStepReply:
+        probes = [_reading(r) for r in session.readings]
+        if ahead is not None:
+            probes = [r._replace(next_free=z) for r, z in zip(probes, ahead, strict=True)]
         return LiveStepReply(
             session=_session_id(request),
             k=session.k,
             t=session.t,
             revision=session.served.revision,
-            probes=tuple([_reading(r) for r in session.readings]),
+            probes=tuple(probes),
             grasps=tuple([_grasp_reading(r) for r in session.grasp_readings]),
             tools=tuple([_tool_reading(r) for r in session.tool_readings]),
             z=None if frame is None else np.reshape(frame, session.served.shape),
             token=token,
             dtype=request.dtype,
         )
+
+
+def _lookahead(
+    engine: LiveEngine[Any],
+    state: Any,
+    loads: tuple[Load, ...],
+    probes: tuple[Probe, ...],
+) -> list[float]:
+    """Each probe's free displacement at the end of the step from ``state`` (the next step):
+    that step taken with the same loads and the probes lifted clear (``MAX_DEPTH`` above the
+    rest surface), whose displacement under each tip is then the free one (NaN outside)."""
+    if not probes:
+        return []
+    clear = [Probe(p.at, -MAX_DEPTH, p.radius) for p in probes]
+    try:
+        after = engine.step(state, loads, clear, frame=False)
+    except LiveError as exc:
+        raise wire_error(exc) from None
+    return [float(r.displacement) for r in after.probes]
 
 
 def _session_id(request: Request) -> str:

@@ -103,9 +103,7 @@ class LogOutput(logging.Handler):
         self._queue: collections.deque[bytes] = collections.deque()
         self._queued_bytes = 0
         self._writing = False
-        self._windows: collections.OrderedDict[tuple[Any, ...], _Window] = (
-            collections.OrderedDict()
-        )
+        self._windows: collections.OrderedDict[tuple[Any, ...], _Window] = collections.OrderedDict()
         # Kinds forgotten (past MAX_KINDS) before their suppressions were told: how many, lines.
         self._evicted_kinds = 0
         self._evicted_lines = 0
@@ -324,8 +322,13 @@ class LogOutput(logging.Handler):
         kinds = len(rest) + self._evicted_kinds
         if kinds:  # many kinds at once: the summaries themselves must not flood
             lines = sum(window.suppressed for window in rest) + self._evicted_lines
-            told.append((__name__, f"{_lines(lines)} of {kinds} other kinds suppressed (at most "
-                         f"{self.overall} lines are written per {self.window_s:g} s)"))
+            told.append(
+                (
+                    __name__,
+                    f"{_lines(lines)} of {kinds} other kinds suppressed (at most "
+                    f"{self.overall} lines are written per {self.window_s:g} s)",
+                )
+            )
         for window in windows:
             window.started, window.passed, window.suppressed = now, 0, 0
         self._evicted_kinds = self._evicted_lines = 0

@@ -161,11 +161,13 @@ def test_to_wire_and_from_wire_are_inverse_and_keep_the_key_order() -> None:
 
 
 def test_a_reading_both_ways_a_newer_servers_fields_ignored() -> None:
-    reading = ProbeReading(27.1, -1e-3, 0.0, True, False)
+    reading = ProbeReading(27.1, -1e-3, 0.0, True, False, 2e-5)
     wire = reading.to_wire()
-    assert list(wire) == ["force", "displacement", "gap", "in_contact", "outside"]
+    assert list(wire) == ["force", "displacement", "gap", "in_contact", "outside", "compliance"]
     assert ProbeReading.from_wire(wire) == reading
-    assert ProbeReading.from_wire({**wire, "compliance": 0.1}) == reading
+    assert ProbeReading.from_wire({**wire, "stiffness": 0.1}) == reading
+    older = ProbeReading.from_wire({k: v for k, v in wire.items() if k != "compliance"})
+    assert older[:5] == reading[:5] and math.isnan(older.compliance)  # a server before it
     outside = ProbeReading.from_wire({**wire, "displacement": math.nan, "outside": True})
     assert outside.outside and math.isnan(outside.displacement)
     for bad in ({**wire, "in_contact": 1}, {**wire, "force": "1"}, {"force": 0.0}, [1, 2]):

@@ -144,8 +144,11 @@ class PhysicalModel(nn.Module):
             "scale": self.scale,
             "boundary_factor": "x(1-x)" if self.spatial_dims == 1 else "x(1-x)y(1-y)",
             "time_factor": (
-                "E(t/t_end) - E(0), E even" if self.plucked
-                else "(t/t_end)^2" if self.hard_initial else "none"
+                "E(t/t_end) - E(0), E even"
+                if self.plucked
+                else "(t/t_end)^2"
+                if self.hard_initial
+                else "none"
             ),
             "initial_shape_column": self.plucked,
         }

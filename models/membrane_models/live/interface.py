@@ -14,6 +14,7 @@ reported contact force is >= 0 (the tissue is pushed along -axis, the tool feels
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Generic, Literal, Protocol, TypeVar, runtime_checkable
@@ -87,6 +88,9 @@ class ProbeReading:
         compliance: c, the one-step compliance under the tip (displacement per unit force).
         in_contact: F > 0.
         outside: the centre is outside the domain: nothing touched, the rest NaN.
+        static_compliance: the static compliance under the tip (displacement per unit force
+            held until the tissue settles): 1 / the tissue's stiffness there, which a haptic
+            coupling is scaled to.
     """
 
     force: float
@@ -95,6 +99,7 @@ class ProbeReading:
     compliance: float
     in_contact: bool
     outside: bool = False
+    static_compliance: float = math.nan
 
 
 @dataclass(frozen=True)

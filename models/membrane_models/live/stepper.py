@@ -168,6 +168,8 @@ class ModalStepper(Generic[FootprintT]):
         self._zeros = np.zeros(self.modes.box)
         self._zeros.setflags(write=False)
         self._energy_weights = self._scale * 0.5 * np.where(self.modes.kept, self.modes.omega**2, 0)
+        # a footprint's static compliance over the stepped modes: scale sum s_k^2 / w_k^2
+        self._static_weights = self._scale * np.where(self.modes.kept, self.modes.omega**-2.0, 0)
 
     # -- the interface ----------------------------------------------------------------------
 
@@ -503,8 +505,9 @@ class ModalStepper(Generic[FootprintT]):
                 v -= (force * tr.zoh_v) * s
                 contact.append((s, float(force)))
         displacement = free - compliance @ forces
+        statics = [self._static(s, fp) for s, fp in zip(shapes, footprints, strict=True)]
         found = iter(
-            _reading(float(f), float(z), float(d), float(compliance[j, j]))
+            _reading(float(f), float(z), float(d), float(compliance[j, j]), statics[j])
             for j, (f, z, d) in enumerate(zip(forces, displacement, depths, strict=True))
         )
         readings = tuple(next(found) if fp else _outside() for fp in prints)
@@ -523,13 +526,20 @@ class ModalStepper(Generic[FootprintT]):
         s = self.basis.modal_force(footprint)
         gain = tr.zoh_q * s
         free = self._scale * float(np.vdot(s, q)) + from_loads(footprint)
-        compliance = self._scale * float(np.vdot(gain, s)) + self.basis.own(footprint)
+        own = self.basis.own(footprint)
+        compliance = self._scale * float(np.vdot(gain, s)) + own
+        static = float(np.vdot(self._static_weights, s * s)) + own
         force = single_contact(compliance, free + probe.depth)
         if force == 0.0:
-            return (_reading(0.0, free, probe.depth, compliance),), []
+            return (_reading(0.0, free, probe.depth, compliance, static),), []
         q -= force * gain
         v -= (force * tr.zoh_v) * s
-        return (_reading(force, free - compliance * force, probe.depth, compliance),), [(s, force)]
+        reading = _reading(force, free - compliance * force, probe.depth, compliance, static)
+        return (reading,), [(s, force)]
+
+    def _static(self, s: FloatArray, footprint: FootprintT) -> float:
+        """The footprint's static compliance (displacement per unit force held for ever)."""
+        return float(np.vdot(self._static_weights, s * s)) + self.basis.own(footprint)
 
     def _project(self, shape: ArrayLike | None, what: str) -> tuple[FloatArray, float]:
         if shape is None:
@@ -580,9 +590,11 @@ def _require_finite(q: FloatArray, v: FloatArray, readings: Sequence[ProbeReadin
         raise InvalidProbe("this step's contact forces are not finite: its depths are too large")
 
 
-def _reading(force: float, displacement: float, depth: float, compliance: float) -> ProbeReading:
+def _reading(
+    force: float, displacement: float, depth: float, compliance: float, static: float
+) -> ProbeReading:
     gap = 0.0 if force > 0.0 else -(displacement + depth)
-    return ProbeReading(force, displacement, gap, compliance, force > 0.0)
+    return ProbeReading(force, displacement, gap, compliance, force > 0.0, False, static)
 
 
 def _outside() -> ProbeReading:

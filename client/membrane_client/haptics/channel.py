@@ -1,0 +1,158 @@
+"""The haptic loop's two processes share one small block of memory: the device side writes the
+proxy's position and force each tick, the network side the last step's contact after each reply.
+
+A memory-mapped file (no broker, no pickling, nothing to clean up but the file) holding float64
+slots. Each side's record is guarded by a sequence lock: the writer makes its counter odd,
+writes, makes it even; a reader copies the record and keeps the copy only if the counter was
+even and unchanged across it, so that neither side ever waits on the other (the servo thread
+never blocks on the network). One writer per record.
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+import tempfile
+from dataclasses import dataclass
+from enum import IntEnum
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Channel", "ContactRecord", "State"]
+
+_PROXY, _PROXY_FIELDS = 0, 4  # seq, then x, y (unused on a string), depth, force
+_CONTACT, _CONTACT_FIELDS = 5, 9  # seq, then ContactRecord's fields in order
+_STATE, _STOP, _DT = 15, 16, 17
+_SLOTS = 24
+_READ_TRIES = 64
+
+
+class State(IntEnum):
+    """The network side's state, as it writes it."""
+
+    STARTING = 0
+    RUNNING = 1
+    STOPPED = 2
+    FAILED = 3
+
+
+@dataclass(frozen=True)
+class ContactRecord:
+    """What the network side last received (``Contact`` is built from it)."""
+
+    k: int  # steps taken by the session (the record is of step k - 1)
+    free: float  # the next step's free displacement under the tip, without the tip's force
+    compliance: float  # the one-step compliance under the tip
+    static_compliance: float
+    force: float  # the force the step was taken with
+    received: float  # time.monotonic() when the reply arrived
+    steps: int  # steps taken by this loop
+    skipped: int  # steps not taken because the network side fell behind wall time
+    lost: int  # steps whose every reply was lost
+
+
+class Channel:
+    """The shared block, created by the device side (``create``) and opened by the network
+    side (``open``) from its path."""
+
+    def __init__(self, path: Path, owner: bool) -> None:
+        self.path, self._owner = path, owner
+        with open(path, "r+b") as handle:
+            self._map = mmap.mmap(handle.fileno(), 8 * _SLOTS)
+        self._slots = np.frombuffer(self._map, dtype=np.float64)
+
+    @classmethod
+    def create(cls) -> Channel:
+        handle, name = tempfile.mkstemp(prefix="membrane-haptics-", suffix=".bin")
+        os.write(handle, bytes(8 * _SLOTS))
+        os.close(handle)
+        return cls(Path(name), owner=True)
+
+    @classmethod
+    def open(cls, path: Path) -> Channel:
+        return cls(path, owner=False)
+
+    def write_proxy(self, at: tuple[float, ...], depth: float, force: float) -> None:
+        """The tip's centre, the proxy's depth and the force it presses with."""
+        x, y = (*at, 0.0)[:2]
+        self._write(_PROXY, [x, y, depth, force])
+
+    def read_proxy(self, dims: int) -> tuple[tuple[float, ...], float, float] | None:
+        """(at, depth, force) as last written, or None before the first."""
+        values = self._read(_PROXY, _PROXY_FIELDS)
+        if values is None:
+            return None
+        return tuple(values[:dims]), values[2], values[3]
+
+    def write_contact(self, record: ContactRecord) -> None:
+        self._write(
+            _CONTACT,
+            [
+                record.k,
+                record.free,
+                record.compliance,
+                record.static_compliance,
+                record.force,
+                record.received,
+                record.steps,
+                record.skipped,
+                record.lost,
+            ],
+        )
+
+    def read_contact(self) -> ContactRecord | None:
+        """The last record, or None before the first (or while a write is in progress)."""
+        values = self._read(_CONTACT, _CONTACT_FIELDS)
+        if values is None or values[5] == 0.0:
+            return None
+        k, free, c, static, force, received, steps, skipped, lost = values
+        counts = int(steps), int(skipped), int(lost)
+        return ContactRecord(int(k), free, c, static, force, received, *counts)
+
+    @property
+    def state(self) -> State:
+        return State(int(self._slots[_STATE]))
+
+    @state.setter
+    def state(self, value: State) -> None:
+        self._slots[_STATE] = float(value)
+
+    @property
+    def stop_requested(self) -> bool:
+        return bool(self._slots[_STOP])
+
+    def request_stop(self) -> None:
+        self._slots[_STOP] = 1.0
+
+    @property
+    def dt(self) -> float:
+        return float(self._slots[_DT])
+
+    @dt.setter
+    def dt(self, value: float) -> None:
+        self._slots[_DT] = value
+
+    def close(self) -> None:
+        """Unmap (and, on the creating side, remove the file)."""
+        del self._slots
+        self._map.close()
+        if self._owner:
+            self.path.unlink(missing_ok=True)
+
+    def _write(self, start: int, values: list[float]) -> None:
+        slots = self._slots
+        slots[start] += 1.0  # odd: a write in progress
+        slots[start + 1 : start + 1 + len(values)] = values
+        slots[start] += 1.0
+
+    def _read(self, start: int, count: int) -> list[float] | None:
+        slots = self._slots
+        for _ in range(_READ_TRIES):
+            before = slots[start]
+            if before % 2.0:
+                continue
+            values = slots[start + 1 : start + 1 + count].tolist()
+            if slots[start] == before:
+                return values if before else None
+        return None
