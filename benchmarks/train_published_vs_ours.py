@@ -111,9 +111,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--budget", type=float, default=900.0, help="seconds per run")
     parser.add_argument("--every", type=int, default=250, help="iterations between errors")
-    parser.add_argument(
-        "--problems", nargs="+", default=["string-forced", "membrane-forced"]
-    )
+    parser.add_argument("--problems", nargs="+", default=["string-forced", "membrane-forced"])
     parser.add_argument("--out", type=Path, default=Path("runs/bench-train"))
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")

@@ -72,7 +72,8 @@ def _package(root: Path) -> Path:
 
 def _scene(root: Path, engine: str) -> Path:
     path = root / f"{engine}.toml"
-    path.write_text(textwrap.dedent(f"""
+    path.write_text(
+        textwrap.dedent(f"""
         name = "{engine}-rope"
         model = "string-forced"
         evaluator = "exact"
@@ -83,7 +84,8 @@ def _scene(root: Path, engine: str) -> Path:
         [live]
         engine = "{engine}"
         level = 0.0
-    """))
+    """)
+    )
     return path
 
 

@@ -8,20 +8,19 @@ that "never hangs at exit" is an observed process exit, not an assumption.
 from __future__ import annotations
 
 import json
-import queue
 import shutil
 import signal
 import subprocess
 import sys
 import textwrap
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any
 
 import pytest
 import zmq
+from serve_process import MEMBRANE, LineReader, ServeProcess
 
 from membrane_client import Client
 from membrane_client.protocol import Request, decode, unpack_array
@@ -32,8 +31,6 @@ from membrane_server.served import ServedScene
 if TYPE_CHECKING:
     from onnx_graphs import TestModel
 
-MEMBRANE = [sys.executable, "-m", "membrane_cli"]
-LINE_TIMEOUT_S = 60.0  # generous: a cold `membrane serve` imports scipy and onnxruntime
 
 # A simulator-like loop: query every step, report each change of state on one stdout line, exit
 # (without closing the client: the interpreter's exit must not hang on it) when told to.
@@ -62,64 +59,6 @@ CLIENT_LOOP = textwrap.dedent(
     print("exiting", flush=True)
     """
 )
-
-
-class LineReader:
-    """Collects a process's output lines in a background thread (so its pipe never fills)."""
-
-    def __init__(self, stream: IO[str]) -> None:
-        self.lines: queue.Queue[str] = queue.Queue()
-        self.seen: list[str] = []
-        self._thread = threading.Thread(target=self._pump, args=(stream,), daemon=True)
-        self._thread.start()
-
-    def _pump(self, stream: IO[str]) -> None:
-        for line in stream:
-            self.lines.put(line.rstrip("\n"))
-
-    def wait_for(self, prefix: str, timeout: float = LINE_TIMEOUT_S) -> str:
-        """The next line starting with ``prefix`` (lines before it are kept in ``seen``)."""
-        deadline = time.monotonic() + timeout
-        while True:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                raise AssertionError(f"no line starting {prefix!r} within {timeout} s: {self.seen}")
-            try:
-                line = self.lines.get(timeout=remaining)
-            except queue.Empty:
-                continue
-            self.seen.append(line)
-            if line.startswith(prefix):
-                return line
-
-    def rest(self, timeout: float = 5.0) -> list[str]:
-        """Every line still to come, once the stream ends (the process exited)."""
-        self._thread.join(timeout)
-        while not self.lines.empty():
-            self.seen.append(self.lines.get())
-        return self.seen
-
-
-class ServeProcess:
-    """`membrane -v serve` in a subprocess; ``address`` is known once it listens."""
-
-    def __init__(self, scene: str, bind: str = "tcp://127.0.0.1:*") -> None:
-        self.process = subprocess.Popen(
-            [*MEMBRANE, "-v", "serve", "--scene", scene, "--bind", bind],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        assert self.process.stdout is not None and self.process.stderr is not None
-        self.stdout = LineReader(self.process.stdout)
-        self.stderr = LineReader(self.process.stderr)
-        line = self.stdout.wait_for("membrane serve: listening on ")
-        self.address = line.split("listening on ", 1)[1].split()[0]
-
-    def close(self) -> None:
-        if self.process.poll() is None:
-            self.process.kill()
-        self.process.wait(10)
 
 
 @pytest.fixture

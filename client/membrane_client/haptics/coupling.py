@@ -30,12 +30,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
-__all__ = ["Contact", "Coupling", "Proxy"]
+__all__ = ["Contact", "Coupling", "Proxy", "couple"]
 
 
-@dataclass(frozen=True)
-class Contact:
+class Contact(NamedTuple):
     """A server step's contact under the tip, as the haptic loop renders it.
 
     Attributes:
@@ -53,12 +53,12 @@ class Contact:
     static_compliance: float = math.nan
     k: int = 0
 
-    @classmethod
-    def ahead(cls, next_free: float, compliance: float, static: float, k: int) -> Contact:
+    @staticmethod
+    def ahead(next_free: float, compliance: float, static: float, k: int) -> Contact:
         """From a ``lookahead`` step's reading: the next step's free displacement."""
         if not (math.isfinite(compliance) and compliance > 0.0 and math.isfinite(next_free)):
-            return cls(0.0, math.nan, math.nan, k)
-        return cls(next_free, compliance, static, k)
+            return Contact(0.0, math.nan, math.nan, k)
+        return Contact(next_free, compliance, static, k)
 
     @property
     def touchable(self) -> bool:
@@ -71,8 +71,7 @@ class Contact:
         return max(0.0, (self.free + depth) / self.compliance)
 
 
-@dataclass(frozen=True)
-class Proxy:
+class Proxy(NamedTuple):
     """The coupling's state after a tick: the proxy's and the device's depths, the force."""
 
     depth: float = 0.0
@@ -119,13 +118,18 @@ class Coupling:
         if not contact.touchable:  # nothing to press: the proxy is the device
             return Proxy(device, device, 0.0)
         k, b = self.gains(contact, period)
-        damper = b / period
-        # the proxy's balance without the tissue's force: k (x - p) + damper (x - x0 + p0 - p) = 0
-        pulled = k * device + damper * (device - previous.device + previous.depth)
-        stiff = k + damper
-        free = pulled / stiff
-        if contact.free + free <= 0.0:
-            return Proxy(free, device, 0.0)
-        c = contact.compliance
-        depth = (pulled - contact.free / c) / (stiff + 1.0 / c)
-        return Proxy(depth, device, max(0.0, (contact.free + depth) / c))
+        return couple(device, previous, contact, k, b / period)
+
+
+def couple(device: float, previous: Proxy, contact: Contact, k: float, damper: float) -> Proxy:
+    """``Coupling.render`` with its gains given (k, and B / T as ``damper``) on a touchable
+    contact: what the servo loop calls each tick, the gains computed once per contact."""
+    # the proxy's balance without the tissue's force: k (x - p) + damper (x - x0 + p0 - p) = 0
+    pulled = k * device + damper * (device - previous.device + previous.depth)
+    stiff = k + damper
+    free = pulled / stiff
+    if contact.free + free <= 0.0:
+        return Proxy(free, device, 0.0)
+    c = contact.compliance
+    depth = (pulled - contact.free / c) / (stiff + 1.0 / c)
+    return Proxy(depth, device, max(0.0, (contact.free + depth) / c))

@@ -30,12 +30,13 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 from membrane_client.errors import UserError
 from membrane_client.haptics.channel import Channel, ContactRecord, State
-from membrane_client.haptics.coupling import Contact, Coupling, Proxy
+from membrane_client.haptics.coupling import Contact, Coupling, Proxy, couple
 
 __all__ = ["HapticLoop", "HapticReport", "Tick"]
 
@@ -44,8 +45,7 @@ _STOP_TIMEOUT_S = 5.0
 _STALE_STEPS = 3.0  # a contact older than this many of the scene's steps is stale
 
 
-@dataclass(frozen=True)
-class Tick:
+class Tick(NamedTuple):
     """One tick of the loop, as ``render`` gets it.
 
     Attributes:
@@ -134,6 +134,7 @@ class HapticLoop:
         self._record: ContactRecord | None = None
         self._error: str | None = None
         self.latest: Tick | None = None
+        self.contact = Contact(0.0, math.nan)  # the contact the last tick rendered from
 
     def start(self) -> HapticLoop:
         """Start the network process, wait for its session, then the servo thread.
@@ -198,7 +199,8 @@ class HapticLoop:
         proxy, contact = Proxy(), Contact(0.0, math.nan)
         stale_after = _STALE_STEPS * max(channel.dt, period)
         start = time.monotonic()
-        deadline = start
+        deadline, seen = start, 0.0
+        k = damper = 0.0
         while not self._stop.is_set():
             now = time.monotonic()
             if now < deadline:
@@ -208,18 +210,25 @@ class HapticLoop:
             if late:  # whole periods lost: count them and render the present
                 counters.missed += late
                 deadline += late * period
-            began = time.perf_counter()
             *at, depth = self._position()
-            record = channel.read_contact()
-            if record is not None and (self._record is None or record.k != self._record.k):
-                self._record = record
-                contact = Contact.ahead(
-                    record.free, record.compliance, record.static_compliance, record.k
-                )
+            began = time.perf_counter()
+            version = channel.contact_version
+            if version != seen:  # a new record (or one being written: read_contact tells)
+                record = channel.read_contact()
+                if record is not None:
+                    seen, self._record = version, record
+                    contact = Contact.ahead(
+                        record.free, record.compliance, record.static_compliance, record.k
+                    )
+                    k, b = self.coupling.gains(contact, period)
+                    damper = b / period
             if self._record is None:  # nothing seen yet: hold the tip at the rest surface
                 proxy = Proxy(min(float(depth), 0.0), float(depth), 0.0)
+            elif not contact.touchable:  # outside the domain: nothing to press
+                proxy = Proxy(float(depth), float(depth), 0.0)
             else:
-                proxy = self.coupling.render(float(depth), proxy, contact, period)
+                proxy = couple(float(depth), proxy, contact, k, damper)
+            self.contact = contact
             channel.write_proxy(tuple(float(x) for x in at), proxy.depth, proxy.force)
             counters.compute.append(time.perf_counter() - began)
             age = math.inf if self._record is None else now - self._record.received
