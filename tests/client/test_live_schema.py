@@ -161,13 +161,16 @@ def test_to_wire_and_from_wire_are_inverse_and_keep_the_key_order() -> None:
 
 
 def test_a_reading_both_ways_a_newer_servers_fields_ignored() -> None:
-    reading = ProbeReading(27.1, -1e-3, 0.0, True, False, 2e-5)
+    reading = ProbeReading(27.1, -1e-3, 0.0, True, False, 2e-5, 3e-3)
     wire = reading.to_wire()
-    assert list(wire) == ["force", "displacement", "gap", "in_contact", "outside", "compliance"]
-    assert ProbeReading.from_wire(wire) == reading
-    assert ProbeReading.from_wire({**wire, "stiffness": 0.1}) == reading
-    older = ProbeReading.from_wire({k: v for k, v in wire.items() if k != "compliance"})
-    assert older[:5] == reading[:5] and math.isnan(older.compliance)  # a server before it
+    keys = ["force", "displacement", "gap", "in_contact", "outside", "compliance"]
+    assert list(wire) == [*keys, "static_compliance"]  # next_free only when asked for
+    back = ProbeReading.from_wire(wire)
+    assert back[:7] == reading[:7] and math.isnan(back.next_free)
+    ahead = reading._replace(next_free=-4e-4)
+    assert ProbeReading.from_wire({**ahead.to_wire(), "stiffness": 0.1}) == ahead
+    older = ProbeReading.from_wire({k: wire[k] for k in keys[:5]})  # a server before them
+    assert older[:5] == reading[:5] and all(math.isnan(v) for v in older[5:])
     outside = ProbeReading.from_wire({**wire, "displacement": math.nan, "outside": True})
     assert outside.outside and math.isnan(outside.displacement)
     for bad in ({**wire, "in_contact": 1}, {**wire, "force": "1"}, {"force": 0.0}, [1, 2]):

@@ -20,9 +20,9 @@ from typing import Any, NamedTuple, cast
 
 __all__ = ["Channel", "ContactRecord", "State"]
 
-_PROXY, _PROXY_FIELDS = 0, 4  # seq, then x, y (unused on a string), depth, force
-_CONTACT, _CONTACT_FIELDS = 5, 9  # seq, then ContactRecord's fields in order
-_STATE, _STOP, _DT = 15, 16, 17
+_PROXY, _PROXY_FIELDS = 0, 5  # seq, then x, y (unused on a string), depth, force, k
+_CONTACT, _CONTACT_FIELDS = 6, 9  # seq, then ContactRecord's fields in order
+_STATE, _STOP, _DT = 16, 17, 18
 _SLOTS = 24
 _READ_TRIES = 64
 
@@ -72,17 +72,18 @@ class Channel:
     def open(cls, path: Path) -> Channel:
         return cls(path, owner=False)
 
-    def write_proxy(self, at: tuple[float, ...], depth: float, force: float) -> None:
-        """The tip's centre, the proxy's depth and the force it presses with."""
+    def write_proxy(self, at: tuple[float, ...], depth: float, force: float, k: int) -> None:
+        """The tip's centre, the proxy's depth, the force it presses with and the step count
+        of the contact that force was rendered from."""
         x, y = (*at, 0.0)[:2]
-        self._write(_PROXY, [x, y, depth, force])
+        self._write(_PROXY, [x, y, depth, force, k])
 
-    def read_proxy(self, dims: int) -> tuple[tuple[float, ...], float, float] | None:
-        """(at, depth, force) as last written, or None before the first."""
+    def read_proxy(self, dims: int) -> tuple[tuple[float, ...], float, float, int] | None:
+        """(at, depth, force, k) as last written, or None before the first."""
         values = self._read(_PROXY, _PROXY_FIELDS)
         if values is None:
             return None
-        return tuple(values[:dims]), values[2], values[3]
+        return tuple(values[:dims]), values[2], values[3], int(values[4])
 
     def write_contact(self, record: ContactRecord) -> None:
         self._write(

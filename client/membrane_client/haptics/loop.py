@@ -43,6 +43,7 @@ __all__ = ["HapticLoop", "HapticReport", "Tick"]
 _START_TIMEOUT_S = 20.0  # the network process's imports, connection and session open
 _STOP_TIMEOUT_S = 5.0
 _STALE_STEPS = 3.0  # a contact older than this many of the scene's steps is stale
+_RECENT_TICKS = 2**20  # the ticks the report's percentiles are over: the last 17 min at 1 kHz
 
 
 class Tick(NamedTuple):
@@ -69,14 +70,16 @@ class Tick(NamedTuple):
 @dataclass(frozen=True)
 class HapticReport:
     """What a loop did: ticks, deadlines missed (a tick that began a period or more late),
-    the per-tick computation's percentiles (reading the contact, coupling, writing the proxy;
-    not the user's ``position`` and ``render``), ticks rendered from a stale contact, and the
-    network side's steps taken, skipped and lost, and its error if it stopped on one."""
+    the per-tick computation's percentiles over the last 2^20 ticks (reading the contact,
+    coupling, writing the proxy; not the user's ``position`` and ``render``), ticks rendered
+    from a stale contact, and the network side's steps taken, skipped and lost, and its error
+    if it stopped on one."""
 
     ticks: int
     missed: int
     compute_p50_us: float
     compute_p99_us: float
+    late_p99_us: float  # how late a tick began after its deadline, p99
     stale_ticks: int
     steps: int
     skipped: int
@@ -84,12 +87,29 @@ class HapticReport:
     error: str | None = None
 
 
+class _Recent:
+    """The last ``size`` values of a per-tick figure (bounded memory on a run of any length)."""
+
+    def __init__(self, size: int = _RECENT_TICKS) -> None:
+        self._values = np.empty(size)
+        self._count = 0
+
+    def append(self, value: float) -> None:
+        self._values[self._count % self._values.size] = value
+        self._count += 1
+
+    def percentile(self, q: float) -> float:
+        held = self._values[: min(self._count, self._values.size)]
+        return float(np.percentile(held, q)) if held.size else math.nan
+
+
 @dataclass
 class _Counters:
     ticks: int = 0
     missed: int = 0
     stale: int = 0
-    compute: list[float] = field(default_factory=list)
+    compute: _Recent = field(default_factory=_Recent)
+    late: _Recent = field(default_factory=_Recent)
 
 
 class HapticLoop:
@@ -177,13 +197,13 @@ class HapticLoop:
 
     def report(self) -> HapticReport:
         counters, record = self._counters, self._record
-        compute = np.asarray(counters.compute) * 1e6
-        p50, p99 = np.percentile(compute, [50, 99]) if compute.size else (math.nan, math.nan)
+        p50, p99 = (1e6 * counters.compute.percentile(q) for q in (50, 99))
+        late = 1e6 * counters.late.percentile(99)
         steps, skipped, lost = (
             (0, 0, 0) if record is None else (record.steps, record.skipped, record.lost)
         )
         return HapticReport(
-            counters.ticks, counters.missed, float(p50), float(p99), counters.stale,
+            counters.ticks, counters.missed, float(p50), float(p99), late, counters.stale,
             steps, skipped, lost, self._error,
         )  # fmt: skip
 
@@ -206,6 +226,7 @@ class HapticLoop:
             if now < deadline:
                 time.sleep(deadline - now)
                 now = time.monotonic()
+            counters.late.append(now - deadline)
             late = int((now - deadline) / period)
             if late:  # whole periods lost: count them and render the present
                 counters.missed += late
@@ -229,7 +250,7 @@ class HapticLoop:
             else:
                 proxy = couple(float(depth), proxy, contact, k, damper)
             self.contact = contact
-            channel.write_proxy(tuple(float(x) for x in at), proxy.depth, proxy.force)
+            channel.write_proxy(tuple(float(x) for x in at), proxy.depth, proxy.force, contact.k)
             counters.compute.append(time.perf_counter() - began)
             age = math.inf if self._record is None else now - self._record.received
             stale = age > stale_after

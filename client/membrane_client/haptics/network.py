@@ -17,6 +17,10 @@ Run by ``HapticLoop`` as ``python -m membrane_client.haptics.network``: in a pro
 own, so that nothing it does (a socket wait, a reply's decoding, a garbage collection) holds
 the device side's interpreter lock (a Python thread may hold it for its 5 ms switch interval).
 
+Each step waits for the device side to have rendered from the last reply: a force rendered
+from an older contact was the force that held the tissue for that older step, and applied
+again it would push the tissue twice (unstable on a stiff one-step response).
+
 Tissue time follows wall time: step k is taken at start + k dt of this process's clock. After
 a stall (the server paused, the machine busy) the steps whose time has passed are not replayed
 one after another to catch up; they are skipped and counted (``ContactRecord.skipped``), and
@@ -73,7 +77,7 @@ def step_at_wall_rate(
         if channel.stop_requested:
             return
         time.sleep(_IDLE_S)
-    steps = skipped = lost = 0
+    steps = skipped = lost = taken = 0
     due = time.monotonic()
     while not channel.stop_requested:
         now = time.monotonic()
@@ -85,8 +89,11 @@ def step_at_wall_rate(
             skipped += behind
             due += behind * dt
         proxy = channel.read_proxy(dims)
+        if proxy is not None and proxy[3] < taken:  # not yet rendered from the last reply
+            time.sleep(_IDLE_S)
+            continue
         if proxy is not None:
-            at, _, force = proxy
+            at, _, force, _ = proxy
             try:
                 frame = session.step(
                     [Load(at, -force, radius)] if force > 0.0 else [],
@@ -97,7 +104,7 @@ def step_at_wall_rate(
             except StepLost:
                 lost += 1
             else:
-                steps += 1
+                steps, taken = steps + 1, frame.k
                 reading = frame.probes[0]
                 free = reading.next_free + reading.compliance * force
                 record = ContactRecord(

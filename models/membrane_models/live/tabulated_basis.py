@@ -37,6 +37,9 @@ __all__ = ["FootprintModel", "StaticCorrection", "TableFootprint", "TabulatedBas
 FloatArray = NDArray[np.float64]
 _Array = TypeVar("_Array", bound=NDArray[Any])
 _CLAMPED = 1e-9  # a lattice point whose modes all move less than this share of the largest
+_RECENT = 16  # footprints kept read (each a modes-long vector: 1.2 kB for 100 modes)
+_Key = TypeVar("_Key")
+_Value = TypeVar("_Value")
 
 
 @dataclass(frozen=True)
@@ -126,6 +129,10 @@ class TabulatedBasis:
         self._description = dict(description or {"basis": "tabulated"})
         self._held_bytes = int(held_bytes)
         self._coordinates = frozen(_grid(self._lattice, self._description))
+        # footprints read recently, by (at, radius): reading one from the tables costs tens of
+        # microseconds, and a step's items and the next step's often sit where they did
+        self._recent: dict[tuple[tuple[float, ...], float], TableFootprint] = {}
+        self._recent_own: dict[tuple[tuple[float, ...], float], float] = {}
 
     @property
     def spatial_dims(self) -> int:
@@ -149,7 +156,8 @@ class TabulatedBasis:
 
     @property
     def memory_bytes(self) -> int:
-        return int(self._shapes.nbytes + self._inverse.nbytes) + self._held_bytes
+        recent = _RECENT * 8 * self._modes.omega.size  # the recent footprints, at most
+        return int(self._shapes.nbytes + self._inverse.nbytes) + self._held_bytes + recent
 
     @property
     def engine_bytes(self) -> int:
@@ -203,7 +211,12 @@ class TabulatedBasis:
         return footprint.modal_force
 
     def own(self, footprint: TableFootprint) -> float:
-        return self.cross(footprint, footprint)
+        key = (footprint.at, footprint.radius)
+        own = self._recent_own.get(key)
+        if own is None:
+            own = self.cross(footprint, footprint)
+            _remember(self._recent_own, key, own)
+        return own
 
     def cross(self, a: TableFootprint, b: TableFootprint) -> float:
         return 0.0 if self._correction is None else self._correction.compliance(a, b)
@@ -257,6 +270,10 @@ class TabulatedBasis:
         return q, float(np.linalg.norm(values - self._shapes @ q)) / norm
 
     def _footprint(self, item: Load | Probe, kind: str, index: int) -> TableFootprint:
+        key = (item.at, item.radius)
+        recent = self._recent.get(key)
+        if recent is not None:  # a haptic step's load, probe and look-ahead share one footprint
+            return recent
         reason = self._footprints.refuses(item.radius)
         if reason is not None:
             error = InvalidLoad if kind == "load" else InvalidProbe
@@ -265,7 +282,16 @@ class TabulatedBasis:
         if not self._all_kept:
             s *= self._modes.kept
         s.setflags(write=False)
-        return TableFootprint(item.at, item.radius, s)
+        footprint = TableFootprint(item.at, item.radius, s)
+        _remember(self._recent, key, footprint)
+        return footprint
+
+
+def _remember(recent: dict[_Key, _Value], key: _Key, value: _Value) -> None:
+    """Keep ``value`` among the last ``_RECENT`` (the oldest goes first: dicts keep order)."""
+    if len(recent) >= _RECENT:
+        del recent[next(iter(recent))]
+    recent[key] = value
 
 
 def _grid(lattice: tuple[int, ...], description: Mapping[str, object]) -> FloatArray:
