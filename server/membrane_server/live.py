@@ -51,6 +51,7 @@ from membrane_models.live import (
     LiveEngine,
     LiveError,
     Load,
+    LookaheadEngine,
     Probe,
     ProbeReading,
     Start,
@@ -298,13 +299,16 @@ def _lookahead(
     loads: tuple[Load, ...],
     probes: tuple[Probe, ...],
 ) -> list[float]:
-    """Each probe's free displacement at the end of the step from ``state`` (the next step):
-    that step taken with the same loads and the probes lifted clear (``MAX_DEPTH`` above the
-    rest surface), whose displacement under each tip is then the free one (NaN outside)."""
+    """Each probe's free displacement at the end of the step from ``state`` (the next step)
+    under the same loads: the engine's own ``lookahead``, or else that step taken with the
+    probes lifted clear (``MAX_DEPTH`` above the rest surface), whose displacement under each
+    tip is then the free one (NaN outside)."""
     if not probes:
         return []
-    clear = [Probe(p.at, -MAX_DEPTH, p.radius) for p in probes]
     try:
+        if isinstance(engine, LookaheadEngine):
+            return [float(z) for z in engine.lookahead(state, loads, probes)]
+        clear = [Probe(p.at, -MAX_DEPTH, p.radius) for p in probes]
         after = engine.step(state, loads, clear, frame=False)
     except LiveError as exc:
         raise wire_error(exc) from None

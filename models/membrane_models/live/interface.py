@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Generic, Literal, Protocol, TypeVar, runtime_checkable
+from typing import Any, Generic, Literal, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -31,6 +31,7 @@ __all__ = [
     "Hold",
     "LiveEngine",
     "Load",
+    "LookaheadEngine",
     "Probe",
     "ProbeReading",
     "Start",
@@ -219,6 +220,18 @@ class BoundedEngine(Protocol):
 
     def domain_text(self) -> str:
         """The domain's extent in words, for a refusal (e.g. "[0, 0.05] x [0, 0.05] m")."""
+
+
+@runtime_checkable
+class LookaheadEngine(Protocol):
+    """An engine that can give each probe's free displacement at the end of the next step
+    without taking it (a haptic loop renders that step's contact from it)."""
+
+    def lookahead(
+        self, state: Any, loads: Sequence[Load] = (), probes: Sequence[Probe] = ()
+    ) -> tuple[float, ...]:
+        """Per probe, the footprint-weighted displacement at the end of the step from ``state``
+        under ``loads`` and no contact (NaN for a probe outside the domain)."""
 
 
 class LiveEngine(Protocol[StateT]):

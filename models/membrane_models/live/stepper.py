@@ -282,6 +282,29 @@ class ModalStepper(Generic[FootprintT]):
         grasped = tuple(_grasp_reading(r) for r in readings[probed:])
         return StepResult(new, self.frame(new) if frame else None, readings[:probed], done, grasped)
 
+    def lookahead(
+        self, state: ModalState, loads: Sequence[Load] = (), probes: Sequence[Probe] = ()
+    ) -> tuple[float, ...]:
+        """Each probe's free displacement at the end of the step from ``state`` under
+        ``loads`` (``LookaheadEngine``): ``step``'s own free displacement, without the step.
+
+        Raises:
+            InvalidLoad, InvalidProbe, InvalidState: as ``step``.
+        """
+        self._check(state)
+        basis = self.basis
+        checked_loads = parse_loads(loads, self._dims, basis.contains) if loads else ()
+        checked_probes = parse_probes(probes, self._dims) if probes else ()
+        load_prints, probe_prints = basis.footprints(checked_loads, checked_probes, self.budget)
+        load_forces = [ld.force for ld in checked_loads]
+        q = self._free_q(state, load_prints, load_forces)
+        from_loads = basis.loads_residual(load_prints, load_forces)
+        scale, modal_force = self._scale, basis.modal_force
+        return tuple(
+            _NAN if fp is None else scale * float(np.vdot(modal_force(fp), q)) + from_loads(fp)
+            for fp in probe_prints
+        )
+
     def _step_tools(
         self,
         state: ModalState,
@@ -326,6 +349,20 @@ class ModalStepper(Generic[FootprintT]):
         index = state.step + 1
         new = ModalState(index, index * self._dt, q, v, p1, tuple(applied), self._owner)
         return StepResult(new, self.frame(new) if frame else None, (), done, (), readings)
+
+    def _free_q(
+        self, state: ModalState, load_prints: Sequence[FootprintT], load_forces: Sequence[float]
+    ) -> FloatArray:
+        """``_free_step``'s q alone (what a look-ahead reads)."""
+        tr = self.transition
+        p1 = self._modal_force(load_prints, load_forces)
+        q = tr.qq * state.q
+        q += tr.qv * state.v
+        if self.hold == "foh":
+            q += tr.foh0_q * state.load_force + tr.foh1_q * p1
+        elif load_prints:
+            q += tr.zoh_q * p1
+        return np.asarray(q)
 
     def _free_step(
         self, state: ModalState, load_prints: Sequence[FootprintT], load_forces: Sequence[float]
