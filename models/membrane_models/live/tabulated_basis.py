@@ -133,6 +133,8 @@ class TabulatedBasis:
         # microseconds, and a step's items and the next step's often sit where they did
         self._recent: dict[tuple[tuple[float, ...], float], TableFootprint] = {}
         self._recent_own: dict[tuple[tuple[float, ...], float], float] = {}
+        self._recent_cross: dict[tuple[tuple[float, ...], float, tuple[float, ...], float], float]
+        self._recent_cross = {}
 
     @property
     def spatial_dims(self) -> int:
@@ -219,7 +221,14 @@ class TabulatedBasis:
         return own
 
     def cross(self, a: TableFootprint, b: TableFootprint) -> float:
-        return 0.0 if self._correction is None else self._correction.compliance(a, b)
+        if self._correction is None:
+            return 0.0
+        key = (a.at, a.radius, b.at, b.radius)
+        value = self._recent_cross.get(key)
+        if value is None:
+            value = self._correction.compliance(a, b)
+            _remember(self._recent_cross, key, value)
+        return value
 
     def loads_residual(
         self, prints: Sequence[TableFootprint], forces: Sequence[float]
