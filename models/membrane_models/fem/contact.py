@@ -45,7 +45,7 @@ from membrane_models.fem.errors import InvalidLoad, InvalidSolve
 from membrane_models.fem.models import Membrane
 from membrane_models.live.inputs import parse_tools
 from membrane_models.live.interface import Tool, ToolReading
-from membrane_models.live.tools import ToolPoints, tool_points, tool_readings
+from membrane_models.live.tools import tool_points, tool_readings
 
 __all__ = ["Pressed", "press"]
 
@@ -93,7 +93,7 @@ def press(system: System, tools: Sequence[Tool], load: ArrayLike | None = None) 
         )
     checked = parse_tools(tools, 2)
     f = _load(system, load)
-    dofs, coordinates = value_nodes(system)
+    dofs, coordinates = _value_nodes(system)
     movable = np.diff(system.transform.tocsr().indptr)[dofs] > 0
     rows = tool_points(checked, coordinates, movable, max_points=dofs.size)
     picks = sp.csr_matrix(
@@ -104,12 +104,11 @@ def press(system: System, tools: Sequence[Tool], load: ArrayLike | None = None) 
     reduced, forces = _obstacle(system.reduced_stiffness, g, system.reduce(f), rows.surface)
     u = system.expand(reduced)
     w = np.asarray(picks @ u)
-    points = ToolPoints(np.arange(rows.count), rows.coordinates, rows.surface, rows.owner)
-    readings = tool_readings(checked, points, forces, w)
+    readings = tool_readings(checked, rows, forces, w)  # per row: w, forces, surface, owner
     return Pressed(u, rows.coordinates, rows.surface, rows.owner, forces, readings)
 
 
-def value_nodes(system: System) -> tuple[IntArray, FloatArray]:
+def _value_nodes(system: System) -> tuple[IntArray, FloatArray]:
     """The DOFs that are values of w at a vertex, and the vertices (vertices, 2) (m)."""
     dofs = np.asarray(system.basis.nodal_dofs[0], dtype=np.intp)
     return dofs, np.ascontiguousarray(system.domain.mesh.p.T)
@@ -119,7 +118,7 @@ def _obstacle(
     k: sp.spmatrix, g: sp.csr_matrix, f: FloatArray, surface: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """r and lambda of the obstacle problem (module docstring)."""
-    free = splu(sp.csc_matrix(k)).solve(f)
+    free = splu(sp.csc_matrix(k)).solve(f)  # also the answer whenever no node is held
     rows = surface.size
     if rows == 0:
         return free, np.zeros(0)
@@ -128,7 +127,7 @@ def _obstacle(
     seen: set[bytes] = set()
     single = False
     for _ in range(4 * rows + 64):  # single flips end for K positive definite: a guard
-        r, force = _held(k, g, f, surface, active)
+        r, force = _held(k, g, f, surface, active, free)
         force_tol = _TOLERANCE * float(np.abs(force).max(initial=0.0))
         wrong = (active & (force < -force_tol)) | (~active & (g @ r - surface > gap_tol))
         if not wrong.any():
@@ -145,14 +144,19 @@ def _obstacle(
 
 
 def _held(
-    k: sp.spmatrix, g: sp.csr_matrix, f: FloatArray, surface: FloatArray, active: NDArray[np.bool_]
+    k: sp.spmatrix,
+    g: sp.csr_matrix,
+    f: FloatArray,
+    surface: FloatArray,
+    active: NDArray[np.bool_],
+    free: FloatArray,
 ) -> tuple[FloatArray, FloatArray]:
     """r with the ``active`` nodes held on the surface, and their forces (0 elsewhere):
-    [[K, G_a'], [G_a, 0]] [r, lambda_a] = [f, s_a]."""
+    [[K, G_a'], [G_a, 0]] [r, lambda_a] = [f, s_a] (``free``: K^-1 f, r when none is)."""
     chosen = np.flatnonzero(active)
     force = np.zeros(surface.size)
     if chosen.size == 0:
-        return splu(sp.csc_matrix(k)).solve(f), force
+        return free, force
     g_a = g[chosen]
     saddle = sp.bmat([[k, g_a.T], [g_a, None]], format="csc")
     try:

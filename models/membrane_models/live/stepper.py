@@ -297,7 +297,7 @@ class ModalStepper(Generic[FootprintT]):
         checked_probes = parse_probes(probes, self._dims) if probes else ()
         load_prints, probe_prints = basis.footprints(checked_loads, checked_probes, self.budget)
         load_forces = [ld.force for ld in checked_loads]
-        q = self._free_q(state, load_prints, load_forces)
+        q = self._free_q(state, self._modal_force(load_prints, load_forces), bool(load_prints))
         from_loads = basis.loads_residual(load_prints, load_forces)
         scale, modal_force = self._scale, basis.modal_force
         return tuple(
@@ -350,17 +350,15 @@ class ModalStepper(Generic[FootprintT]):
         new = ModalState(index, index * self._dt, q, v, p1, tuple(applied), self._owner)
         return StepResult(new, self.frame(new) if frame else None, (), done, (), readings)
 
-    def _free_q(
-        self, state: ModalState, load_prints: Sequence[FootprintT], load_forces: Sequence[float]
-    ) -> FloatArray:
-        """``_free_step``'s q alone (what a look-ahead reads)."""
+    def _free_q(self, state: ModalState, p1: FloatArray, loaded: bool) -> FloatArray:
+        """q at the end of a step without contact, the loads' modal force ``p1`` at its end
+        (``loaded``: any load; under the first-order hold the previous step's count too)."""
         tr = self.transition
-        p1 = self._modal_force(load_prints, load_forces)
         q = tr.qq * state.q
         q += tr.qv * state.v
         if self.hold == "foh":
             q += tr.foh0_q * state.load_force + tr.foh1_q * p1
-        elif load_prints:
+        elif loaded:
             q += tr.zoh_q * p1
         return np.asarray(q)
 
@@ -368,18 +366,14 @@ class ModalStepper(Generic[FootprintT]):
         self, state: ModalState, load_prints: Sequence[FootprintT], load_forces: Sequence[float]
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """q, v at the end of a step without contact, and the loads' modal force then."""
-        tr, q0, v0 = self.transition, state.q, state.v
+        tr = self.transition
         p1 = self._modal_force(load_prints, load_forces)
-        q = tr.qq * q0
-        q += tr.qv * v0
-        v = tr.vq * q0
-        v += tr.vv * v0
+        q = self._free_q(state, p1, bool(load_prints))
+        v = tr.vq * state.q
+        v += tr.vv * state.v
         if self.hold == "foh":
-            p0 = state.load_force
-            q += tr.foh0_q * p0 + tr.foh1_q * p1
-            v += tr.foh0_v * p0 + tr.foh1_v * p1
+            v += tr.foh0_v * state.load_force + tr.foh1_v * p1
         elif load_prints:
-            q += tr.zoh_q * p1
             v += tr.zoh_v * p1
         return q, v, p1
 
@@ -542,7 +536,7 @@ class ModalStepper(Generic[FootprintT]):
                 v -= (force * tr.zoh_v) * s
                 contact.append((s, float(force)))
         displacement = free - compliance @ forces
-        statics = [self._static(s, fp) for s, fp in zip(shapes, footprints, strict=True)]
+        statics = [self._static(s, basis.own(fp)) for s, fp in zip(shapes, footprints, strict=True)]
         found = iter(
             _reading(float(f), float(z), float(d), float(compliance[j, j]), statics[j])
             for j, (f, z, d) in enumerate(zip(forces, displacement, depths, strict=True))
@@ -565,7 +559,7 @@ class ModalStepper(Generic[FootprintT]):
         free = self._scale * float(np.vdot(s, q)) + from_loads(footprint)
         own = self.basis.own(footprint)
         compliance = self._scale * float(np.vdot(gain, s)) + own
-        static = float(np.vdot(self._static_weights, s * s)) + own
+        static = self._static(s, own)
         force = single_contact(compliance, free + probe.depth)
         if force == 0.0:
             return (_reading(0.0, free, probe.depth, compliance, static),), []
@@ -574,9 +568,10 @@ class ModalStepper(Generic[FootprintT]):
         reading = _reading(force, free - compliance * force, probe.depth, compliance, static)
         return (reading,), [(s, force)]
 
-    def _static(self, s: FloatArray, footprint: FootprintT) -> float:
-        """The footprint's static compliance (displacement per unit force held for ever)."""
-        return float(np.vdot(self._static_weights, s * s)) + self.basis.own(footprint)
+    def _static(self, s: FloatArray, own: float) -> float:
+        """A footprint's static compliance (displacement per unit force held for ever), from
+        its modal force ``s`` and the static correction's own compliance ``own``."""
+        return float(np.vdot(self._static_weights, s * s)) + own
 
     def _project(self, shape: ArrayLike | None, what: str) -> tuple[FloatArray, float]:
         if shape is None:
