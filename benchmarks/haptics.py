@@ -25,6 +25,7 @@ import math
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -35,6 +36,8 @@ from typing import Any
 import numpy as np
 
 from membrane_client.haptics import Contact, Coupling, HapticLoop, Proxy, Tick
+from membrane_client.haptics.histogram import Histogram
+from membrane_client.haptics.realtime import DEFAULT_PRIORITY, make_realtime
 from membrane_client.live_schema import MAX_DEPTH
 from membrane_models.live import Load, Probe
 from membrane_server.scene import load_scene
@@ -111,9 +114,19 @@ def busy_core() -> Iterator[None]:
         hog.wait(10)
 
 
-def bare_loop(rate: float, seconds: float) -> dict[str, float]:
-    """A loop that only sleeps to its deadlines: ticks, misses, p99 lateness (us)."""
-    period, late = 1.0 / rate, []
+def bare_loop(rate: float, seconds: float, priority: int | None) -> dict[str, float]:
+    """A thread that only sleeps to its deadlines, at the haptic loop's priority: ticks,
+    misses, p99 lateness (us)."""
+    result: dict[str, float] = {}
+    thread = threading.Thread(target=_bare, args=(rate, seconds, priority, result))
+    thread.start()
+    thread.join()
+    return result
+
+
+def _bare(rate: float, seconds: float, priority: int | None, result: dict[str, float]) -> None:
+    realtime = make_realtime(priority)
+    period, late = 1.0 / rate, Histogram()  # the haptic loop's own bookkeeping
     missed, ticks = 0, 0
     start = deadline = time.monotonic()
     while deadline - start < seconds:
@@ -121,17 +134,24 @@ def bare_loop(rate: float, seconds: float) -> dict[str, float]:
         if now < deadline:
             time.sleep(deadline - now)
             now = time.monotonic()
-        late.append(now - deadline)
+        late.add(now - deadline)
         behind = int((now - deadline) / period)
         if behind:
             missed += behind
             deadline += behind * period
         ticks += 1
         deadline += period
-    return {"ticks": ticks, "missed": missed, "late_p99_us": float(np.percentile(late, 99)) * 1e6}
+    result.update(
+        ticks=ticks,
+        missed=missed,
+        late_p99_us=late.percentile(99) * 1e6,
+        realtime=float(realtime),
+    )
 
 
-def haptic_window(address: str, rate: float, seconds: float) -> dict[str, float]:
+def haptic_window(
+    address: str, rate: float, seconds: float, priority: int | None
+) -> dict[str, float]:
     """The haptic loop for ``seconds``, the hand repeating the script."""
     x, depth = script(rate)
     ticks = [0]
@@ -143,7 +163,7 @@ def haptic_window(address: str, rate: float, seconds: float) -> dict[str, float]
     def count(_: Tick) -> None:
         ticks[0] += 1
 
-    loop = HapticLoop(address, SCENE, position, rate_hz=rate, render=count)
+    loop = HapticLoop(address, SCENE, position, rate_hz=rate, render=count, priority=priority)
     with loop:
         time.sleep(seconds)
     r = loop.report()
@@ -156,10 +176,11 @@ def haptic_window(address: str, rate: float, seconds: float) -> dict[str, float]
         "steps": r.steps,
         "skipped": r.skipped,
         "stale_ticks": r.stale_ticks,
+        "realtime": float(r.realtime),
     }
 
 
-def deadlines(rate: float, seconds: float, window: float) -> dict[str, Any]:
+def deadlines(rate: float, seconds: float, window: float, priority: int | None) -> dict[str, Any]:
     """Alternating windows of the bare and the haptic loop at ``rate``, under a busy core."""
     totals: dict[str, list[dict[str, float]]] = {"bare": [], "haptic": []}
     with served(SCENE) as address, busy_core():
@@ -167,9 +188,9 @@ def deadlines(rate: float, seconds: float, window: float) -> dict[str, Any]:
             kind = "bare" if index % 2 == 0 else "haptic"
             print(f"  {rate:g} Hz, window {index + 1}: {kind}", file=sys.stderr, flush=True)
             if kind == "bare":
-                totals[kind].append(bare_loop(rate, window))
+                totals[kind].append(bare_loop(rate, window, priority))
             else:
-                totals[kind].append(haptic_window(address, rate, window))
+                totals[kind].append(haptic_window(address, rate, window, priority))
     return {kind: _pooled(windows) for kind, windows in totals.items()}
 
 
@@ -177,6 +198,7 @@ def _pooled(windows: list[dict[str, float]]) -> dict[str, float]:
     summed = {k: sum(w[k] for w in windows) for k in ("ticks", "missed")}
     worst = {k: max(w[k] for w in windows) for k in windows[0] if k.endswith("_us")}
     kept = [k for k in ("steps", "skipped", "stale_ticks") if k in windows[0]]
+    worst["realtime"] = min(w["realtime"] for w in windows)  # 1: every window ran SCHED_FIFO
     counts: dict[str, float] = {k: sum(w[k] for w in windows) for k in kept}
     return {**summed, **worst, **counts}
 
@@ -232,9 +254,9 @@ def _variant(dt: float) -> Iterator[Path]:
 
 def _table(rows: dict[float, dict[str, Any]], fidelity_rows: list[dict[str, float]]) -> str:
     lines = [
-        "| rate | loop | ticks | missed | late p99 (us) | compute p50 / p99 (us) "
+        "| rate | loop | priority | ticks | missed | late p99 (us) | compute p50 / p99 (us) "
         "| steps / skipped |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for rate, kinds in rows.items():
         for kind, r in kinds.items():
@@ -243,7 +265,8 @@ def _table(rows: dict[float, dict[str, Any]], fidelity_rows: list[dict[str, floa
             )
             steps = f"{r['steps']:.0f} / {r['skipped']:.0f}" if kind == "haptic" else ""
             lines.append(
-                f"| {rate / 1e3:g} kHz | {kind} | {r['ticks']:.0f} | {r['missed']:.0f} "
+                f"| {rate / 1e3:g} kHz | {kind} | {_priority(r)} | {r['ticks']:.0f} "
+                f"| {r['missed']:.0f} "
                 f"({100 * r['missed'] / max(r['ticks'], 1):.2f} %) | {r['late_p99_us']:.0f} | "
                 f"{compute} | {steps} |"
             )
@@ -253,6 +276,10 @@ def _table(rows: dict[float, dict[str, Any]], fidelity_rows: list[dict[str, floa
             f"| {r['dt_ms']:g} ms | {r['offline']:.2e} | {r['served']:.2e} |" for r in fidelity_rows
         ]
     return "\n".join(lines)
+
+
+def _priority(row: dict[str, Any]) -> str:
+    return f"FIFO {DEFAULT_PRIORITY}" if row["realtime"] else "normal"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -268,9 +295,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rates", type=float, nargs="+", default=[1000.0, 5000.0])
     parser.add_argument("--dts", type=float, nargs="+", default=[0.001, 0.005, 0.01])
     parser.add_argument("--no-fidelity", action="store_true")
+    parser.add_argument(
+        "--normal-priority",
+        action="store_true",
+        help="both loops at normal priority (default: SCHED_FIFO where granted)",
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
-    rows = {rate: deadlines(rate, args.seconds, args.window) for rate in args.rates}
+    priority = None if args.normal_priority else DEFAULT_PRIORITY
+    rows = {rate: deadlines(rate, args.seconds, args.window, priority) for rate in args.rates}
     print("  fidelity", file=sys.stderr, flush=True)
     fidelity_rows = [] if args.no_fidelity else fidelity(args.dts, 1000.0)
     if args.json:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -306,13 +306,26 @@ def _lookahead(
     if not probes:
         return []
     try:
-        if isinstance(engine, LookaheadEngine):
-            return [float(z) for z in engine.lookahead(state, loads, probes)]
+        if _looks_ahead(engine):
+            return [float(z) for z in cast(LookaheadEngine, engine).lookahead(state, loads, probes)]
         clear = [Probe(p.at, -MAX_DEPTH, p.radius) for p in probes]
         after = engine.step(state, loads, clear, frame=False)
     except LiveError as exc:
         raise wire_error(exc) from None
     return [float(r.displacement) for r in after.probes]
+
+
+_LOOKS_AHEAD: dict[type, bool] = {}
+
+
+def _looks_ahead(engine: object) -> bool:
+    """``isinstance(engine, LookaheadEngine)``, answered once per engine class: a runtime
+    protocol check inspects the class's attributes each time (10 us, on every step)."""
+    kind = type(engine)
+    answer = _LOOKS_AHEAD.get(kind)
+    if answer is None:
+        answer = _LOOKS_AHEAD[kind] = isinstance(engine, LookaheadEngine)
+    return answer
 
 
 def _session_id(request: Request) -> str:

@@ -29,8 +29,8 @@ PERIOD = 1e-3
 class Device:
     """A scripted hand: depth ``script[n]`` at the loop's n-th tick, or ``hold`` once set."""
 
-    def __init__(self, script: np.ndarray) -> None:
-        self.script, self.calls = script, 0
+    def __init__(self, script: np.ndarray, at: tuple[float, float] = AT) -> None:
+        self.script, self.at, self.calls = script, at, 0
         self.hold: float | None = None
         self.lock = threading.Lock()
 
@@ -40,7 +40,7 @@ class Device:
             depth = (
                 self.hold if self.hold is not None else self.script[min(n, self.script.size - 1)]
             )
-        return (*AT, float(depth))
+        return (*self.at, float(depth))
 
 
 @pytest.fixture(scope="module")
@@ -79,13 +79,45 @@ def test_a_slow_press_never_lets_go_nor_spikes(
     script = np.concatenate([ramp, np.full(800, 1e-3)])
     ticks, _ = _run(server, script)
     forces = np.array([tick.force for tick in ticks])
-    touching = int(np.flatnonzero(forces > 0)[0])
-    # no chatter: once touching (the first reply's round trip in), never back to 0
-    assert touching <= 50 and (forces[touching:] > 0).all()
+    # no chatter: below the surface from the first tick, and pressed from it (the network side
+    # sends a contact before the loop's first tick)
+    assert (forces > 0).all()
     settled = 1e-3 / (0.014772 * 6 / 5)  # the coupled static force at full depth, 0.0564
-    # a rigid tip's first step alone is 2.8 times that (0.158); measured 1.3 to 1.7 times here,
-    # more when the network side skips steps (the tissue then lags the hand) and it rings
+    # this press is shorter than membrane-live's slowest period (0.28 s): a rigid tip's exact
+    # force bounces to 0 and back and reaches 465 times the static force at its depth in the
+    # first 5 ms (docs/HAPTICS.md, "Limits"); through the coupling the largest was 1.3 to 1.7
+    # times the settled force, more when the network side skips steps (the tissue lags)
     assert forces.max() <= 2.0 * settled and forces[-400:].min() >= 0.4 * settled
+
+
+@pytest.fixture(scope="module")
+def skin() -> Iterator[ServeProcess]:
+    process = ServeProcess("skin-patch")
+    yield process
+    process.close()
+
+
+def test_a_slow_press_on_the_skin_patch_follows_its_static_stiffness(skin: ServeProcess) -> None:
+    # 1 mm at 5 mm/s, held: 16 of the patch's slowest periods (81.7 Hz), a slow press for it
+    depth = np.minimum(np.arange(1, 501) / 200, 1.0) * 1e-3
+    ticks: list[Tick] = []
+    device = Device(depth, at=(0.025, 0.025))
+    loop = HapticLoop(skin.address, "skin-patch", device, render=ticks.append)
+    with loop:
+        while len(ticks) < depth.size:
+            time.sleep(0.01)
+    forces = np.array([tick.force for tick in ticks[: depth.size]])
+    devices = np.array([tick.device for tick in ticks[: depth.size]])
+    static = loop.contact.static_compliance  # 1 / 301.8 N/m at the centre
+    quasi_static = devices / (static * 6 / 5)  # the coupled static force at each tick's depth
+    assert (forces > 0).all()  # pressed from the first tick, never let go
+    # from 50 ms on within 1.2 times the quasi-static force (measured 1.05 to 1.11); before,
+    # the plate's inertia: its drive-point impedance 8 sqrt(D rho h) = 0.95 N s/m times 5 mm/s
+    # is 4.7 mN, 3.3 times the static force of the first millisecond's 5 um (a rigid tip's
+    # exact force), and the network side's skipped steps make the tissue lag (2.3 times)
+    ratio = forces / quasi_static
+    assert ratio[50:].max() <= 1.2, f"{ratio[50:].max():.3f}"
+    assert ratio[-100:] == pytest.approx(1.0, abs=0.02)
 
 
 def test_while_the_server_is_stopped_the_loop_renders_from_the_sent_compliance(

@@ -32,7 +32,7 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
-__all__ = ["Contact", "Coupling", "Proxy", "couple"]
+__all__ = ["Contact", "Coupling", "Proxy", "balance", "couple"]
 
 
 class Contact(NamedTuple):
@@ -123,13 +123,29 @@ class Coupling:
 
 def couple(device: float, previous: Proxy, contact: Contact, k: float, damper: float) -> Proxy:
     """``Coupling.render`` with its gains given (k, and B / T as ``damper``) on a touchable
-    contact: what the servo loop calls each tick, the gains computed once per contact."""
+    contact."""
+    depth, force = balance(
+        device, previous.device, previous.depth, contact.free, contact.compliance, k, damper
+    )
+    return Proxy(depth, device, force)
+
+
+def balance(
+    device: float,
+    device_before: float,
+    proxy_before: float,
+    free: float,
+    compliance: float,
+    k: float,
+    damper: float,
+) -> tuple[float, float]:
+    """``couple`` on plain numbers: the proxy's depth and the force, from the device's depth
+    now and the device's and proxy's depths a tick before. What the servo thread calls each
+    tick (no objects built: a few microseconds matter there)."""
     # the proxy's balance without the tissue's force: k (x - p) + damper (x - x0 + p0 - p) = 0
-    pulled = k * device + damper * (device - previous.device + previous.depth)
+    pulled = k * device + damper * (device - device_before + proxy_before)
     stiff = k + damper
-    free = pulled / stiff
-    if contact.free + free <= 0.0:
-        return Proxy(free, device, 0.0)
-    c = contact.compliance
-    depth = (pulled - contact.free / c) / (stiff + 1.0 / c)
-    return Proxy(depth, device, max(0.0, (contact.free + depth) / c))
+    if free + pulled / stiff <= 0.0:
+        return pulled / stiff, 0.0
+    depth = (pulled - free / compliance) / (stiff + 1.0 / compliance)
+    return depth, max(0.0, (free + depth) / compliance)

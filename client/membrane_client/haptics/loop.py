@@ -19,10 +19,16 @@ scene's rate, the contact at the device's). The network side
 (``network``) runs in another process; while it is late (a stalled server) the loop keeps
 rendering from the last contact, moving with the device by the sent compliance, and says so
 (``Tick.stale``).
+
+The servo thread runs at a ``SCHED_FIFO`` priority where the OS grants one (``realtime``), wakes
+``lead`` ahead of each deadline to take the newest contact and warm the tick, keeps its timings
+in fixed histograms, and ``start`` freezes the garbage collector's old objects until ``stop``
+(docs/HAPTICS.md, "The servo thread", has the measurements behind each).
 """
 
 from __future__ import annotations
 
+import gc
 import math
 import subprocess
 import sys
@@ -32,18 +38,18 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-import numpy as np
-
 from membrane_client.errors import UserError
 from membrane_client.haptics.channel import Channel, ContactRecord, State
-from membrane_client.haptics.coupling import Contact, Coupling, Proxy, couple
+from membrane_client.haptics.coupling import Contact, Coupling, balance
+from membrane_client.haptics.histogram import Histogram
+from membrane_client.haptics.realtime import DEFAULT_PRIORITY, make_realtime
 
 __all__ = ["HapticLoop", "HapticReport", "Tick"]
 
 _START_TIMEOUT_S = 20.0  # the network process's imports, connection and session open
 _STOP_TIMEOUT_S = 5.0
 _STALE_STEPS = 3.0  # a contact older than this many of the scene's steps is stale
-_RECENT_TICKS = 2**20  # the ticks the report's percentiles are over: the last 17 min at 1 kHz
+_LEAD_S = 1e-4  # the longest wake-up ahead of a deadline by default (a quarter period below)
 
 
 class Tick(NamedTuple):
@@ -70,7 +76,7 @@ class Tick(NamedTuple):
 @dataclass(frozen=True)
 class HapticReport:
     """What a loop did: ticks, deadlines missed (a tick that began a period or more late),
-    the per-tick computation's percentiles over the last 2^20 ticks (reading the contact,
+    the per-tick computation's percentiles over every tick, to 1 us (reading the contact,
     coupling, writing the proxy; not the user's ``position`` and ``render``), ticks rendered
     from a stale contact, and the network side's steps taken, skipped and lost, and its error
     if it stopped on one."""
@@ -84,23 +90,8 @@ class HapticReport:
     steps: int
     skipped: int
     lost: int
+    realtime: bool = False  # the servo thread ran at its SCHED_FIFO priority
     error: str | None = None
-
-
-class _Recent:
-    """The last ``size`` values of a per-tick figure (bounded memory on a run of any length)."""
-
-    def __init__(self, size: int = _RECENT_TICKS) -> None:
-        self._values = np.empty(size)
-        self._count = 0
-
-    def append(self, value: float) -> None:
-        self._values[self._count % self._values.size] = value
-        self._count += 1
-
-    def percentile(self, q: float) -> float:
-        held = self._values[: min(self._count, self._values.size)]
-        return float(np.percentile(held, q)) if held.size else math.nan
 
 
 @dataclass
@@ -108,8 +99,68 @@ class _Counters:
     ticks: int = 0
     missed: int = 0
     stale: int = 0
-    compute: _Recent = field(default_factory=_Recent)
-    late: _Recent = field(default_factory=_Recent)
+    compute: Histogram = field(default_factory=Histogram)
+    late: Histogram = field(default_factory=Histogram)
+
+
+class _Renderer:
+    """A tick's computation, in two parts: ``prepare`` when the thread wakes (the newest
+    contact from the channel, then a dry run of the tick), ``tick`` at the deadline (the
+    coupling's balance from the device's depth, the proxy into the channel). Plain numbers
+    throughout: after a sleep every Python operation costs several times its warm price, so
+    the dry run brings the tick's code and data back into cache before the device is read."""
+
+    def __init__(self, channel: Channel | None, coupling: Coupling, period: float) -> None:
+        self.channel, self.coupling, self.period = channel, coupling, period
+        self.record: ContactRecord | None = None
+        self.contact = Contact(0.0, math.nan)
+        self.seen, self.touchable = 0.0, False
+        self.k = self.damper = 0.0
+        # the last tick's: the device's and proxy's depths, the force, the tip's centre, and
+        # the step its contact came from (what the network side waits on: module docstring)
+        self.device = self.depth = self.force = 0.0
+        self.x = self.y = 0.0
+        self.step = -1
+
+    def prepare(self) -> None:
+        channel = self.channel
+        assert channel is not None
+        version = channel.contact_version
+        if version != self.seen:  # a new record (or one being written: read_contact tells)
+            self._take(channel, version)
+        if self.step >= 0:  # the dry run: the last tick's numbers, the same record again
+            self._balance(self.device)
+            channel.write_proxy(self.x, self.y, self.depth, self.force, self.step)
+
+    def tick(self, x: float, y: float, device: float) -> None:
+        assert self.channel is not None
+        depth, force = self._balance(device)
+        self.device, self.depth, self.force = device, depth, force
+        self.x, self.y, self.step = x, y, self.contact.k
+        self.channel.write_proxy(x, y, depth, force, self.step)
+
+    def _balance(self, device: float) -> tuple[float, float]:
+        if self.record is None:  # nothing seen yet: hold the tip at the rest surface
+            return min(device, 0.0), 0.0
+        if not self.touchable:  # outside the domain: nothing to press
+            return device, 0.0
+        contact = self.contact
+        return balance(
+            device, self.device, self.depth, contact.free, contact.compliance,
+            self.k, self.damper,
+        )  # fmt: skip
+
+    def _take(self, channel: Channel, version: float) -> None:
+        record = channel.read_contact()
+        if record is None:
+            return
+        self.seen, self.record = version, record
+        self.contact = contact = Contact.ahead(
+            record.free, record.compliance, record.static_compliance, record.k
+        )
+        self.touchable = contact.touchable
+        self.k, b = self.coupling.gains(contact, self.period)
+        self.damper = b / self.period
 
 
 class HapticLoop:
@@ -124,6 +175,11 @@ class HapticLoop:
         coupling: the virtual coupling (``Coupling()``: the defaults its docstring gives).
         render: called with each ``Tick`` (the device's force); None: only ``latest``.
         timeout: the network side's wait for a reply before a retry (s).
+        priority: the servo thread's ``SCHED_FIFO`` priority where the OS grants it
+            (``realtime``); None: normal priority.
+        lead: how long before each deadline the thread wakes to take the newest contact and
+            warm the tick, then spins to the deadline (s); None: a quarter period, at most
+            100 us; 0: wake at the deadline.
     """
 
     def __init__(
@@ -137,13 +193,20 @@ class HapticLoop:
         coupling: Coupling | None = None,
         render: Callable[[Tick], None] | None = None,
         timeout: float = 0.25,
+        priority: int | None = DEFAULT_PRIORITY,
+        lead: float | None = None,
     ) -> None:
+        if priority is not None and not 1 <= priority <= 99:
+            raise UserError(f"priority must be a SCHED_FIFO priority 1 to 99 or None: {priority!r}")
         if not (math.isfinite(rate_hz) and 1.0 <= rate_hz <= 100_000.0):
             raise UserError(f"rate_hz must be in [1, 100000], got {rate_hz!r}")
         if not (math.isfinite(radius) and radius >= 0.0):
             raise UserError(f"radius must be >= 0, got {radius!r}")
         self.address, self.scene, self.radius = address, scene, float(radius)
         self.period = 1.0 / rate_hz
+        if lead is not None and not (math.isfinite(lead) and 0.0 <= lead < self.period):
+            raise UserError(f"lead must be in [0, the period {self.period:g} s), got {lead!r}")
+        self.lead = min(_LEAD_S, self.period / 4) if lead is None else float(lead)
         self.coupling = coupling or Coupling()
         self._position, self._render, self._timeout = position, render, timeout
         self._counters = _Counters()
@@ -151,10 +214,10 @@ class HapticLoop:
         self._thread: threading.Thread | None = None
         self._process: subprocess.Popen[str] | None = None
         self._channel: Channel | None = None
-        self._record: ContactRecord | None = None
+        self._renderer = _Renderer(None, self.coupling, self.period)
+        self._priority, self._realtime, self._froze = priority, False, False
         self._error: str | None = None
         self.latest: Tick | None = None
-        self.contact = Contact(0.0, math.nan)  # the contact the last tick rendered from
 
     def start(self) -> HapticLoop:
         """Start the network process, wait for its session, then the servo thread.
@@ -162,7 +225,8 @@ class HapticLoop:
         Raises:
             UserError: the network side could not open the session (its one-line reason).
         """
-        dims = len(self._position()) - 1
+        *at, _ = self._position()
+        dims = len(at)
         if dims not in (1, 2):
             raise UserError(f"position() gives (x, [y,] depth): 2 or 3 numbers, got {dims + 1}")
         self._channel = channel = Channel.create()
@@ -170,6 +234,7 @@ class HapticLoop:
         command += ["--address", self.address, "--scene", self.scene]
         command += ["--channel", str(channel.path), "--radius", repr(self.radius)]
         command += ["--dims", str(dims), "--timeout", repr(self._timeout)]
+        command += ["--at", *(repr(float(x)) for x in at)]
         self._process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + _START_TIMEOUT_S
         while channel.state is State.STARTING and self._process.poll() is None:
@@ -183,6 +248,9 @@ class HapticLoop:
             reason = self._network_error() or "the network side exited"
             self._shutdown()
             raise UserError(reason)
+        self._froze = gc.get_freeze_count() == 0
+        if self._froze:  # a collection in the servo thread scans only what is made from now
+            gc.freeze()
         self._thread = threading.Thread(target=self._serve, args=(dims,), daemon=True)
         self._thread.start()
         return self
@@ -192,11 +260,19 @@ class HapticLoop:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(_STOP_TIMEOUT_S)
+        if self._froze:
+            gc.unfreeze()
+            self._froze = False
         self._shutdown()
         return self.report()
 
+    @property
+    def contact(self) -> Contact:
+        """The contact the last tick rendered from."""
+        return self._renderer.contact
+
     def report(self) -> HapticReport:
-        counters, record = self._counters, self._record
+        counters, record = self._counters, self._renderer.record
         p50, p99 = (1e6 * counters.compute.percentile(q) for q in (50, 99))
         late = 1e6 * counters.late.percentile(99)
         steps, skipped, lost = (
@@ -204,7 +280,7 @@ class HapticLoop:
         )
         return HapticReport(
             counters.ticks, counters.missed, float(p50), float(p99), late, counters.stale,
-            steps, skipped, lost, self._error,
+            steps, skipped, lost, self._realtime, self._error,
         )  # fmt: skip
 
     def __enter__(self) -> HapticLoop:
@@ -215,53 +291,45 @@ class HapticLoop:
 
     def _serve(self, dims: int) -> None:
         assert self._channel is not None
+        self._realtime = make_realtime(self._priority)
         channel, period, counters = self._channel, self.period, self._counters
-        proxy, contact = Proxy(), Contact(0.0, math.nan)
+        self._renderer = renderer = _Renderer(channel, self.coupling, period)
         stale_after = _STALE_STEPS * max(channel.dt, period)
-        start = time.monotonic()
-        deadline, seen = start, 0.0
-        k = damper = 0.0
+        lead = self.lead
+        start = deadline = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
-            if now < deadline:
-                time.sleep(deadline - now)
-                now = time.monotonic()
-            counters.late.append(now - deadline)
+            if now < deadline - lead:
+                time.sleep(deadline - lead - now)
+            renderer.prepare()  # the newest contact, and the tick warmed
+            while (now := time.monotonic()) < deadline:
+                pass  # the last microseconds, on a warm core
+            counters.late.add(now - deadline)
             late = int((now - deadline) / period)
             if late:  # whole periods lost: count them and render the present
                 counters.missed += late
                 deadline += late * period
             *at, depth = self._position()
+            x, y, device = float(at[0]), float(at[-1]) if dims == 2 else 0.0, float(depth)
             began = time.perf_counter()
-            version = channel.contact_version
-            if version != seen:  # a new record (or one being written: read_contact tells)
-                record = channel.read_contact()
-                if record is not None:
-                    seen, self._record = version, record
-                    contact = Contact.ahead(
-                        record.free, record.compliance, record.static_compliance, record.k
-                    )
-                    k, b = self.coupling.gains(contact, period)
-                    damper = b / period
-            if self._record is None:  # nothing seen yet: hold the tip at the rest surface
-                proxy = Proxy(min(float(depth), 0.0), float(depth), 0.0)
-            elif not contact.touchable:  # outside the domain: nothing to press
-                proxy = Proxy(float(depth), float(depth), 0.0)
-            else:
-                proxy = couple(float(depth), proxy, contact, k, damper)
-            self.contact = contact
-            channel.write_proxy(tuple(float(x) for x in at), proxy.depth, proxy.force, contact.k)
-            counters.compute.append(time.perf_counter() - began)
-            age = math.inf if self._record is None else now - self._record.received
-            stale = age > stale_after
-            counters.stale += stale
-            counters.ticks += 1
-            self.latest = tick = Tick(
-                deadline - start, float(depth), proxy.depth, proxy.force, contact.k, age, stale
-            )
-            if self._render is not None:
-                self._render(tick)
+            renderer.tick(x, y, device)
+            counters.compute.add(time.perf_counter() - began)
+            self._publish(deadline - start, now, device, renderer, stale_after)
             deadline += period
+
+    def _publish(
+        self, t: float, now: float, device: float, renderer: _Renderer, stale_after: float
+    ) -> None:
+        """The tick as ``render`` and ``latest`` get it."""
+        record, counters = renderer.record, self._counters
+        age = math.inf if record is None else now - record.received
+        stale = age > stale_after
+        counters.stale += stale
+        counters.ticks += 1
+        tick = Tick(t, device, renderer.depth, renderer.force, renderer.contact.k, age, stale)
+        self.latest = tick
+        if self._render is not None:
+            self._render(tick)
 
     def _shutdown(self) -> None:
         if self._channel is not None:

@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from membrane_client.client import Client
@@ -56,8 +57,13 @@ def main(argv: list[str] | None = None) -> int:
         with client, client.session(args.scene) as session:
             assert session.info is not None
             channel.dt = session.info.dt
+            tally = _Tally()
+            at = tuple(args.at[: args.dims])
+            # a first step before the device's clock starts: its first tick has a contact
+            if not _step(session, channel, at, 0.0, args.radius, tally):
+                raise MembraneError("the first step's replies were lost")
             channel.state = State.RUNNING
-            step_at_wall_rate(session, channel, session.info.dt, args.radius, args.dims)
+            step_at_wall_rate(session, channel, session.info.dt, args.radius, args.dims, tally)
         channel.state = State.STOPPED
         return 0
     except MembraneError as error:  # a refusal, a dead server: the device side reports it
@@ -68,8 +74,16 @@ def main(argv: list[str] | None = None) -> int:
         channel.close()
 
 
+@dataclass
+class _Tally:
+    steps: int = 0
+    skipped: int = 0
+    lost: int = 0
+    taken: int = 0  # the session's step count after the last reply
+
+
 def step_at_wall_rate(
-    session: Session, channel: Channel, dt: float, radius: float, dims: int
+    session: Session, channel: Channel, dt: float, radius: float, dims: int, tally: _Tally
 ) -> None:
     """Step ``session`` every ``dt`` of wall time with the proxy's position until the device
     side asks to stop (module docstring)."""
@@ -77,7 +91,6 @@ def step_at_wall_rate(
         if channel.stop_requested:
             return
         time.sleep(_IDLE_S)
-    steps = skipped = lost = taken = 0
     due = time.monotonic()
     while not channel.stop_requested:
         now = time.monotonic()
@@ -86,40 +99,52 @@ def step_at_wall_rate(
             continue
         behind = int((now - due) / dt)
         if behind:  # a stall: those steps' time has passed, take the next one now
-            skipped += behind
+            tally.skipped += behind
             due += behind * dt
         proxy = channel.read_proxy(dims)
-        if proxy is not None and proxy[3] < taken:  # not yet rendered from the last reply
+        if proxy is None or proxy[3] < tally.taken:  # not yet rendered from the last reply
             time.sleep(_IDLE_S)
             continue
-        if proxy is not None:
-            at, _, force, _ = proxy
-            try:
-                frame = session.step(
-                    [Load(at, -force, radius)] if force > 0.0 else [],
-                    [Probe(at, -MAX_DEPTH, radius)],
-                    frame=False,
-                    lookahead=True,
-                )
-            except StepLost:
-                lost += 1
-            else:
-                steps, taken = steps + 1, frame.k
-                reading = frame.probes[0]
-                free = reading.next_free + reading.compliance * force
-                record = ContactRecord(
-                    frame.k,
-                    free,
-                    reading.compliance,
-                    reading.static_compliance,
-                    force,
-                    time.monotonic(),
-                    steps,
-                    skipped,
-                    lost,
-                )
-                channel.write_contact(record)
+        at, _, force, _ = proxy
+        _step(session, channel, at, force, radius, tally)
         due += dt
+
+
+def _step(
+    session: Session,
+    channel: Channel,
+    at: tuple[float, ...],
+    force: float,
+    radius: float,
+    tally: _Tally,
+) -> bool:
+    """One step with ``force`` on the tip's footprint; its contact into the channel. False
+    when every reply was lost (counted)."""
+    try:
+        frame = session.step(
+            [Load(at, -force, radius)] if force > 0.0 else [],
+            [Probe(at, -MAX_DEPTH, radius)],
+            frame=False,
+            lookahead=True,
+        )
+    except StepLost:
+        tally.lost += 1
+        return False
+    tally.steps, tally.taken = tally.steps + 1, frame.k
+    reading = frame.probes[0]
+    record = ContactRecord(
+        frame.k,
+        reading.next_free + reading.compliance * force,
+        reading.compliance,
+        reading.static_compliance,
+        force,
+        time.monotonic(),
+        tally.steps,
+        tally.skipped,
+        tally.lost,
+    )
+    channel.write_contact(record)
+    return True
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -129,6 +154,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--channel", required=True, help="the shared block's file")
     parser.add_argument("--radius", type=float, default=0.0)
     parser.add_argument("--dims", type=int, choices=(1, 2), default=2)
+    parser.add_argument(
+        "--at", type=float, nargs="+", default=[0.0, 0.0], help="the tip's first x [y]"
+    )
     parser.add_argument("--timeout", type=float, default=0.25)
     parser.add_argument("--retries", type=int, default=2)
     return parser
