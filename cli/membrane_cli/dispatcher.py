@@ -59,6 +59,7 @@ EXTRA_FOR_MODULE: dict[str, str] = {
     "aiohttp": "view",
     "coppeliasim_zmqremoteapi_client": "coppelia",
     "cbor2": "coppelia",
+    "mujoco": "mujoco",
 }
 
 
