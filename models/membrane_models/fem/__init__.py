@@ -10,7 +10,10 @@ Physics as small weak forms assembled with scikit-fem, one job per module:
   constrained space, the rigid-body check; ``assembly``: ``assemble`` -> ``System``;
 - ``static``: point, pressure and patch loads, ``solve``; ``contact``: ``press``, rigid tools
   pressed in, the exact static contact on the mesh's vertices; ``modal``: ``modes``;
-  ``sampling``: ``sample`` a field at points; ``stress``: von Mises at a point.
+  ``sampling``: ``sample`` a field at points; ``stress``: von Mises at a point;
+- ``von_karman``: the large-deflection plate's energy, residual and tangent; ``nonlinear``:
+  ``solve_nonlinear``, its static state by Newton with load stepping, in-plane supports per
+  part.
 
 Bad input raises a ``FemError`` (a ``membrane_errors.UserError``). Nothing here imports torch.
 """
@@ -45,6 +48,7 @@ from membrane_models.fem.geometry import (
 from membrane_models.fem.mesh_file import read_mesh
 from membrane_models.fem.modal import Modes, modes
 from membrane_models.fem.models import Membrane, Model, Plate
+from membrane_models.fem.nonlinear import NonlinearSolution, solve_nonlinear
 from membrane_models.fem.sampling import derivatives, sample, sampler
 from membrane_models.fem.static import patch_load, point_load, pressure_load, solve
 from membrane_models.fem.stress import SurfaceStress, surface_stress
@@ -68,6 +72,7 @@ __all__ = [
     "MissingMesher",
     "Model",
     "Modes",
+    "NonlinearSolution",
     "OutsideDomain",
     "Plate",
     "Pressed",
@@ -90,5 +95,6 @@ __all__ = [
     "sample",
     "sampler",
     "solve",
+    "solve_nonlinear",
     "surface_stress",
 ]

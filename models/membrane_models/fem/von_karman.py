@@ -1,0 +1,151 @@
+"""The von Karman plate's weak forms: bending coupled to the membrane stretching it causes.
+
+A plate deflected by w (m, along +z) with in-plane displacements u = (u_x, u_y) (m) stretches
+its mid-surface by the Green-Lagrange strain of moderate rotations,
+
+    eps = sym(grad u) + 1/2 grad w (x) grad w,
+
+carrying the membrane force N = A [(1 - nu) eps + nu tr(eps) I] (N/m, A = E h / (1 - nu^2)).
+The energy is the bending energy (``forms.bending``) plus 1/2 N : eps, less the load's work.
+Its first variation is the residual, its second the tangent, both assembled here for a given
+state (w on the plate's basis, u on a vector P2 basis sharing its quadrature):
+
+- R_u(v) = N : sym(grad v),
+- R_w(v) = (bending of w)(v) + (N grad w) . grad v - f(v),
+- K_uu = C(sym grad du) : sym grad v,  K_uw = C(sym(grad w (x) grad dw)) : sym grad v,
+- K_ww = bending + (N grad dw) . grad v + C(sym(grad w (x) grad dw)) : sym(grad w (x) grad v),
+
+with C(e) = A [(1 - nu) e + nu tr(e) I] and K_wu the transpose of K_uw. Linearised at w = 0
+this is the Kirchhoff plate and a decoupled plane stress problem: the small-load limit.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+from skfem import BilinearForm, Functional, LinearForm
+from skfem.helpers import ddot, dot, eye, grad, sym_grad, trace
+
+__all__ = ["Tangent", "energy", "membrane_strain", "residual", "tangent"]
+
+
+def _outer(a: Any, b: Any) -> Any:
+    return np.einsum("i...,j...->ij...", a, b)
+
+
+def _sym_outer(a: Any, b: Any) -> Any:
+    return 0.5 * (_outer(a, b) + _outer(b, a))
+
+
+def _stress(e: Any, w: Any) -> Any:
+    """C(e): the membrane force of strain e (N/m)."""
+    return w.stretching * ((1.0 - w.poisson) * e + w.poisson * eye(trace(e), 2))
+
+
+def membrane_strain(w: Any) -> Any:
+    """eps at the quadrature points of the state fields ``w.u`` and ``w.w``."""
+    slope = grad(w.w)
+    return sym_grad(w.u) + 0.5 * _outer(slope, slope)
+
+
+@LinearForm
+def _inplane_residual(v: Any, w: Any) -> Any:
+    return ddot(_stress(membrane_strain(w), w), sym_grad(v))
+
+
+@LinearForm
+def _coupling_residual(v: Any, w: Any) -> Any:
+    force = _stress(membrane_strain(w), w)
+    return dot(np.einsum("ij...,j...->i...", force, grad(w.w)), grad(v))
+
+
+@BilinearForm
+def _inplane_tangent(du: Any, v: Any, w: Any) -> Any:
+    return ddot(_stress(sym_grad(du), w), sym_grad(v))
+
+
+@BilinearForm
+def _cross_tangent(dw: Any, v: Any, w: Any) -> Any:  # trial: w's basis, test: u's
+    return ddot(_stress(_sym_outer(grad(w.w), grad(dw)), w), sym_grad(v))
+
+
+@BilinearForm
+def _transverse_tangent(dw: Any, v: Any, w: Any) -> Any:
+    force = _stress(membrane_strain(w), w)
+    slope = grad(w.w)
+    geometric = dot(np.einsum("ij...,j...->i...", force, grad(dw)), grad(v))
+    material = ddot(_stress(_sym_outer(slope, grad(dw)), w), _sym_outer(slope, grad(v)))
+    return geometric + material
+
+
+@Functional
+def _stretching_energy(w: Any) -> Any:
+    strain = membrane_strain(w)
+    return 0.5 * ddot(_stress(strain, w), strain)
+
+
+def energy(
+    plate_basis: Any,
+    inplane_basis: Any,
+    bending: sp.spmatrix,
+    load: Any,
+    w_dofs: Any,
+    u_dofs: Any,
+    stretching: float,
+    poisson: float,
+) -> float:
+    """The total potential energy (J): bending, stretching, less the load's work."""
+    fields = _fields(plate_basis, inplane_basis, w_dofs, u_dofs)
+    stretch = _stretching_energy.assemble(
+        plate_basis, stretching=stretching, poisson=poisson, **fields
+    )
+    return float(0.5 * w_dofs @ (bending @ w_dofs) + stretch - load @ w_dofs)
+
+
+def _fields(plate_basis: Any, inplane_basis: Any, w_dofs: Any, u_dofs: Any) -> dict[str, Any]:
+    return {"w": plate_basis.interpolate(w_dofs), "u": inplane_basis.interpolate(u_dofs)}
+
+
+def residual(
+    plate_basis: Any,
+    inplane_basis: Any,
+    bending: sp.spmatrix,
+    load: Any,
+    w_dofs: Any,
+    u_dofs: Any,
+    stretching: float,
+    poisson: float,
+) -> tuple[Any, Any]:
+    """(R_w, R_u): the energy's gradient on the plate's and the in-plane DOFs (N, N m, ...)."""
+    fields = _fields(plate_basis, inplane_basis, w_dofs, u_dofs)
+    coefficients = {"stretching": stretching, "poisson": poisson, **fields}
+    r_w = bending @ w_dofs + _coupling_residual.assemble(plate_basis, **coefficients) - load
+    r_u = _inplane_residual.assemble(inplane_basis, **coefficients)
+    return np.asarray(r_w), np.asarray(r_u)
+
+
+class Tangent:
+    """The energy's Hessian at a state, by blocks: ``ww`` (with the bending), ``uw`` (rows: u,
+    columns: w), ``uu``; ``wu`` is ``uw``'s transpose."""
+
+    def __init__(self, ww: sp.spmatrix, uw: sp.spmatrix, uu: sp.spmatrix) -> None:
+        self.ww, self.uw, self.uu = ww, uw, uu
+
+
+def tangent(
+    plate_basis: Any,
+    inplane_basis: Any,
+    bending: sp.spmatrix,
+    w_dofs: Any,
+    u_dofs: Any,
+    stretching: float,
+    poisson: float,
+) -> Tangent:
+    fields = _fields(plate_basis, inplane_basis, w_dofs, u_dofs)
+    coefficients = {"stretching": stretching, "poisson": poisson, **fields}
+    ww = bending + _transverse_tangent.assemble(plate_basis, **coefficients)
+    uw = _cross_tangent.assemble(plate_basis, inplane_basis, **coefficients)
+    uu = _inplane_tangent.assemble(inplane_basis, **coefficients)
+    return Tangent(sp.csr_matrix(ww), sp.csr_matrix(uw), sp.csr_matrix(uu))
