@@ -88,6 +88,14 @@ def add_fem(subparsers: argparse._SubParsersAction) -> None:
     static.add_argument(
         "--pressure", metavar="PRESSURE", help="a uniform pressure instead of --load, e.g. 1kPa"
     )
+    static.add_argument(
+        "--nonlinear",
+        nargs="?",
+        const="held",
+        choices=("held", "sliding"),
+        help="also the large-deflection (von Karman) plate, its edges held (default) or "
+        "sliding in their plane, side by side with the linear one",
+    )
     static.set_defaults(handler=_run_static)
 
     modes = _subparser(

@@ -87,8 +87,11 @@ def run_static(args: argparse.Namespace) -> int:
     lines.append(f"peak deflection: {peak * 1e3:.4g} mm at {millimetres(peak_at)}")
     lines.append(_stiffness(loading, w_at))
     lines.append(_stress(item, system, u, loading))
+    if args.nonlinear is not None:
+        lines += _nonlinear(item, system, u, loading, args.nonlinear)
     print("\n".join(lines))
-    _warn(item, loading, peak)
+    if args.nonlinear is None:
+        _warn(item, loading, peak)
     if args.plot is not None:
         from membrane_models.commands.fem_plots import plot_deflection  # matplotlib
 
@@ -150,26 +153,70 @@ def _stiffness(loading: Loading, w_at: float) -> str:
 
 
 def _stress(item: Tissue, system: fem.System, u: FloatArray, loading: Loading) -> str:
-    model = item.model
-    if not isinstance(model, fem.Plate):
+    if not isinstance(item.model, fem.Plate):
         return "stress: - (a membrane carries its tension only: no bending stress)"
+    where = _stress_point(item, system, loading)
+    if where is None:
+        return "stress: - (no point r = h from the load lies on the mesh)"
+    point, words = where
+    stress = fem.surface_stress(system, u, point).von_mises
+    return f"stress: {_kpa(stress)} at the surface (bending + pre-stress) {words}"
+
+
+def _stress_point(
+    item: Tissue, system: fem.System, loading: Loading
+) -> tuple[FloatArray, str] | None:
+    """Where the stress is read, and its words: under a patch's centre, at a pressure's
+    point, at r = h from a point load (module docstring); None when no such point is on the
+    mesh."""
     if loading.kind != "point":
-        where = "under the patch's centre" if loading.kind == "patch" else "at the point"
-        stress = fem.surface_stress(system, u, loading.at).von_mises
-        return f"stress: {_kpa(stress)} at the surface {where} (bending + pre-stress)"
-    h = model.thickness
+        words = "under the patch's centre" if loading.kind == "patch" else "at the point"
+        return loading.at, words
+    assert isinstance(item.model, fem.Plate)
+    h = item.model.thickness
     for direction in _DIRECTIONS:
         point = loading.at + h * np.asarray(direction)
         try:
-            stress = fem.surface_stress(system, u, point).von_mises
+            fem.sample(system, np.zeros(system.dofs), point)
         except fem.OutsideDomain:
             continue
-        return (
-            f"stress: {_kpa(stress)} at the surface (bending + pre-stress) "
+        return point, (
             f"at r = h = {format_quantity(h, 'length')} from the load: under a point load the "
             "peak stress diverges like log(1/r), so it is read where thin-plate theory ends"
         )
-    return "stress: - (no point r = h from the load lies on the mesh)"
+    return None
+
+
+def _nonlinear(
+    item: Tissue, system: fem.System, u: FloatArray, loading: Loading, inplane: str
+) -> list[str]:
+    """The von Karman plate beside the linear one: deflection, stiffness, stress."""
+    if not isinstance(item.model, fem.Plate):
+        raise UsageError("--nonlinear is a plate's large deflection: the model is a membrane")
+    state = fem.solve_nonlinear(system, _vector(loading, system), inplane=inplane)
+    w_linear = float(fem.sample(system, u, loading.at))
+    w_large = float(fem.sample(system, state.w, loading.at))
+    rows = [
+        ("deflection (mm)", f"{w_linear * 1e3:.4g}", f"{w_large * 1e3:.4g}"),
+        ("stiffness (N/mm)", f"{loading.force / w_linear / 1e3:.4g}",
+         f"{loading.force / w_large / 1e3:.4g}"),
+    ]  # fmt: skip
+    where = _stress_point(item, system, loading)
+    if where is not None:
+        point, _ = where
+        linear = fem.surface_stress(system, u, point).von_mises
+        membrane = fem.membrane_force(system, state, point)
+        large = fem.surface_stress(system, state.w, point, membrane).von_mises
+        rows.append(("stress (kPa von Mises)", f"{linear / 1e3:.4g}", f"{large / 1e3:.4g}"))
+    header = ("", "linear", f"nonlinear (edges {inplane} in their plane)")
+    widths = [max(len(row[i]) for row in [header, *rows]) + 2 for i in range(3)]
+    table = ["".join(cell.ljust(width) for cell, width in zip(row, widths, strict=True)).rstrip()
+             for row in [header, *rows]]  # fmt: skip
+    note = (
+        f"von Karman plate: {state.increments} load increments, {state.iterations} Newton "
+        "iterations; the stress adds the stretch's membrane force to the bending"
+    )
+    return ["", *table, note]
 
 
 def _kpa(stress: float) -> str:

@@ -48,7 +48,7 @@ from membrane_models.fem.geometry import (
 from membrane_models.fem.mesh_file import read_mesh
 from membrane_models.fem.modal import Modes, modes
 from membrane_models.fem.models import Membrane, Model, Plate
-from membrane_models.fem.nonlinear import NonlinearSolution, solve_nonlinear
+from membrane_models.fem.nonlinear import NonlinearSolution, membrane_force, solve_nonlinear
 from membrane_models.fem.sampling import derivatives, sample, sampler
 from membrane_models.fem.static import patch_load, point_load, pressure_load, solve
 from membrane_models.fem.stress import SurfaceStress, surface_stress
@@ -84,6 +84,7 @@ __all__ = [
     "disk",
     "ellipse",
     "from_triangles",
+    "membrane_force",
     "modes",
     "patch_load",
     "point_load",

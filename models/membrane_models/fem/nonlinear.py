@@ -31,10 +31,11 @@ from skfem import ElementTriP2, ElementVector
 from membrane_models.fem.assembly import System
 from membrane_models.fem.errors import InvalidLoad, InvalidModel, InvalidSolve, InvalidSupports
 from membrane_models.fem.models import Plate
+from membrane_models.fem.sampling import derivatives, locate
 from membrane_models.fem.static import solve
 from membrane_models.fem.von_karman import residual, tangent
 
-__all__ = ["INPLANE", "InPlane", "NonlinearSolution", "solve_nonlinear"]
+__all__ = ["INPLANE", "InPlane", "NonlinearSolution", "membrane_force", "solve_nonlinear"]
 
 InPlane = Literal["held", "sliding", "free"]
 INPLANE: tuple[str, ...] = get_args(InPlane)
@@ -106,6 +107,29 @@ def solve_nonlinear(
         w, u, spent, last = attempt
         done, iterations, taken = target, iterations + spent, taken + 1
     return NonlinearSolution(w, u, inplane_basis, taken, iterations, last)
+
+
+def membrane_force(
+    system: System, state: NonlinearSolution, at: ArrayLike
+) -> tuple[float, float, float]:
+    """(N_x, N_y, N_xy) (N/m) at ``at`` = (x, y): the membrane force the deflection's stretch
+    carries there, C(sym(grad u) + 1/2 grad w (x) grad w) (``von_karman``)."""
+    plate = system.model
+    assert isinstance(plate, Plate)
+    xy = np.asarray(at, dtype=np.float64).reshape(1, 2)
+    _, slope, _ = derivatives(system, state.w, xy)
+    basis = state.inplane_basis
+    cells, local = locate(system, xy)
+    coefficients = state.u[basis.element_dofs[:, cells]]  # (Nbfun, 1)
+    gradient = np.zeros((2, 2))
+    for k in range(basis.Nbfun):
+        field = basis.elem.gbasis(basis.mapping, local, k, tind=cells)[0]
+        gradient += coefficients[k, 0] * np.asarray(field.grad)[:, :, 0, 0]
+    strain = 0.5 * (gradient + gradient.T) + 0.5 * np.outer(slope[0], slope[0])
+    stretching = plate.youngs_modulus * plate.thickness / (1.0 - plate.poisson**2)
+    nu = plate.poisson
+    force = stretching * ((1.0 - nu) * strain + nu * np.trace(strain) * np.eye(2))
+    return float(force[0, 0]), float(force[1, 1]), float(force[0, 1])
 
 
 def _steps(system: System, load: FloatArray) -> int:

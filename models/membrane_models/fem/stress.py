@@ -6,7 +6,8 @@ With z up (w positive along +z) and the mid-plane at z = 0, the bending moments 
 
 and the bending stress is linear through the thickness, sigma(z) = 12 M z / h^3: +-6 M / h^2
 on the faces (z = +h/2 "top", z = -h/2 "bottom"). The pre-tension T adds T / h to sigma_x and
-sigma_y on both faces. von Mises (plane stress): sqrt(sx^2 - sx sy + sy^2 + 3 txy^2) (Pa).
+sigma_y on both faces, and so does a large deflection's membrane force N / h (``membrane``).
+von Mises (plane stress): sqrt(sx^2 - sx sy + sy^2 + 3 txy^2) (Pa).
 The curvatures are the Argyris field's own second derivatives at the point (``sampling``).
 """
 
@@ -46,8 +47,15 @@ class SurfaceStress:
         return max(self.top, self.bottom)
 
 
-def surface_stress(system: System, u: ArrayLike, at: ArrayLike) -> SurfaceStress:
-    """The stress of the deflection ``u`` at ``at`` = (x, y) (m)."""
+def surface_stress(
+    system: System,
+    u: ArrayLike,
+    at: ArrayLike,
+    membrane: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> SurfaceStress:
+    """The stress of the deflection ``u`` at ``at`` = (x, y) (m); ``membrane``: a large
+    deflection's membrane force there, (N_x, N_y, N_xy) N/m (``nonlinear.membrane_force``),
+    added as N / h on both faces like the pre-tension."""
     plate = system.model
     if not isinstance(plate, Plate) or system.element != "argyris":
         raise InvalidSolve("surface stress is a plate's, on argyris triangles")
@@ -55,11 +63,15 @@ def surface_stress(system: System, u: ArrayLike, at: ArrayLike) -> SurfaceStress
     wxx, wxy, wyy = hessian[0, 0, 0], hessian[0, 0, 1], hessian[0, 1, 1]
     d, nu, h = plate.rigidity, plate.poisson, plate.thickness
     mx, my, mxy = -d * (wxx + nu * wyy), -d * (wyy + nu * wxx), -d * (1 - nu) * wxy
-    prestress = plate.pretension / h
+    nx, ny, nxy = (
+        (plate.pretension + membrane[0]) / h,
+        (plate.pretension + membrane[1]) / h,
+        membrane[2] / h,
+    )
     faces = []
     for side in (1.0, -1.0):
-        sx = side * 6 * mx / h**2 + prestress
-        sy = side * 6 * my / h**2 + prestress
-        txy = side * 6 * mxy / h**2
+        sx = side * 6 * mx / h**2 + nx
+        sy = side * 6 * my / h**2 + ny
+        txy = side * 6 * mxy / h**2 + nxy
         faces.append(math.sqrt(max(sx * sx - sx * sy + sy * sy + 3 * txy * txy, 0.0)))
     return SurfaceStress((float(mx), float(my), float(mxy)), faces[0], faces[1])

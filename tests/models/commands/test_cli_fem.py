@@ -70,6 +70,22 @@ def test_static_centre_deflection_of_the_skin_square(capsys: pytest.CaptureFixtu
 
 
 @pytest.mark.slow
+def test_static_nonlinear_beside_linear(capsys: pytest.CaptureFixture[str]) -> None:
+    # the study's patch at 1 N on 6.25 mm elements (docs/NONLINEAR.md: 3.310 and 2.543 mm)
+    code, out, err = _fem(
+        capsys, "static", *SQUARE, "--load", "1N", "--element-size", "6.25mm", "--nonlinear"
+    )
+    assert code == 0, err
+    row = re.search(r"deflection \(mm\)\s+(\S+)\s+(\S+)", out)
+    assert row is not None, out
+    linear, large = float(row.group(1)), float(row.group(2))
+    assert linear == pytest.approx(3.310, rel=1e-3) and large == pytest.approx(2.543, rel=1e-3)
+    stress = re.search(r"stress \(kPa von Mises\)\s+(\S+)\s+(\S+)", out)
+    assert stress is not None and 0 < float(stress.group(2)) < float(stress.group(1))
+    assert "nonlinear (edges held in their plane)" in out and "w << h" not in err
+
+
+@pytest.mark.slow
 def test_static_patch_and_pressure(capsys: pytest.CaptureFixture[str]) -> None:
     code, out, err = _fem(
         capsys, "static", *SQUARE, "--load", "0.1N", "--at", "20,25", "--tool-radius", "5mm"
