@@ -17,6 +17,7 @@ from membrane_cli.dispatcher import main as membrane_main
 from membrane_coppelia.standin import CoppeliaStandin
 
 
+@pytest.mark.slow  # over a second: the full suite runs it
 def test_cli_runs_half_a_second(
     standin: CoppeliaStandin, membrane_server: Any, capsys: pytest.CaptureFixture[str]
 ) -> None:

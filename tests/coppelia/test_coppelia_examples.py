@@ -34,6 +34,7 @@ def _example(name: str) -> ModuleType:
     return module
 
 
+@pytest.mark.slow  # over a second: the full suite runs it
 def test_membrane_example_runs_100_steps_to_the_served_positions(
     standin: CoppeliaStandin, membrane_server: Any, membrane_client: Client
 ) -> None:

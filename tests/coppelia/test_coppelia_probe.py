@@ -110,6 +110,7 @@ def _nearest_point(info: SceneInfo, at: tuple[float, float]) -> int:
 
 
 @pytest.mark.parametrize("version", ["4.9", "4.7"])
+@pytest.mark.slow  # over a second: the full suite runs it
 def test_the_sphere_under_the_tip_follows_it_in_contact(live_server: Any, version: str) -> None:
     with CoppeliaStandin(version=version) as standin:
         _press_and_check(live_server, standin)
@@ -186,6 +187,7 @@ def test_an_unknown_probe_object_is_bad_input(live_server: Any, standin: Coppeli
 # -- the command line -----------------------------------------------------------------------
 
 
+@pytest.mark.slow  # over a second: the full suite runs it
 def test_cli_probe_run(
     live_server: Any, standin: CoppeliaStandin, capsys: pytest.CaptureFixture[str]
 ) -> None:

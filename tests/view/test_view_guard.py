@@ -160,6 +160,7 @@ def _bridge_threads() -> list[str]:
     return [t.name for t in threading.enumerate() if t.name.startswith("membrane-view")]
 
 
+@pytest.mark.slow  # over a second: the full suite runs it
 def test_past_the_cap_a_websocket_gets_503_and_opens_nothing(
     start_server: Any, start_bridge: BridgeFactory
 ) -> None:

@@ -111,6 +111,7 @@ def test_checkpoint_is_plain_data_and_resumes(tmp_path: Path) -> None:
     torch.testing.assert_close(model(x), resumed.model(x))
 
 
+@pytest.mark.slow  # over a second: the full suite runs it
 def test_run_ends_with_the_mean_of_its_last_weights(tmp_path: Path) -> None:
     seen: list[dict[str, torch.Tensor]] = []
 
@@ -200,6 +201,7 @@ def test_pointwise_residual_sees_the_kink_through_its_first_modes() -> None:
 
 
 @pytest.mark.parametrize(("every", "grids"), [(0, 1), (5, 3)])
+@pytest.mark.slow  # over a second: the full suite runs it
 def test_lbfgs_grid_is_redrawn_on_schedule_or_kept(
     monkeypatch: pytest.MonkeyPatch, every: int, grids: int
 ) -> None:

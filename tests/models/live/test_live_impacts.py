@@ -72,6 +72,7 @@ def test_a_sudden_press_matches_the_all_modes_reference(at: tuple[float, float])
     assert _worst_force_error(60, at) < TOLERANCE
 
 
+@pytest.mark.slow  # over a second: the full suite runs it
 def test_the_two_probe_compliance_matches_the_reference() -> None:
     places = [(0.45, 0.5), (0.55, 0.5)]
     ours = _one_step_compliance(_engine(60), places)

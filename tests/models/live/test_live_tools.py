@@ -117,6 +117,7 @@ def _settled_punch_force(lattice: int, radius: float, depth: float) -> float:
     return result.tools[0].force
 
 
+@pytest.mark.slow  # over a second: the full suite runs it
 def test_a_flat_punch_on_the_square_needs_the_conformal_radius_force() -> None:
     """Lattice 41 (spacing 0.025) under a punch of radius 0.1: within 1 % of
     F = 2 pi T d / ln(R_c / b) (measured +0.26 %; lattice 21: -4.3 %)."""
@@ -129,6 +130,7 @@ def test_a_flat_punch_on_the_square_needs_the_conformal_radius_force() -> None:
     assert abs(force / inscribed - 1) > 3e-2
 
 
+@pytest.mark.slow  # over a second: the full suite runs it
 def test_between_lattice_points_the_tissue_stays_within_the_stated_bound() -> None:
     """On a grid 4x finer than the lattice under a flat punch (settled), the tissue rises above
     the face between its points by at most 15 % of the depth at spacing / radius = 0.5
