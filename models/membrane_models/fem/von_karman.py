@@ -45,20 +45,25 @@ def _stress(e: Any, w: Any) -> Any:
 
 
 def membrane_strain(w: Any) -> Any:
-    """eps at the quadrature points of the state fields ``w.u`` and ``w.w``."""
-    slope = grad(w.w)
-    return sym_grad(w.u) + 0.5 * _outer(slope, slope)
+    """eps at the quadrature points of the state fields ``w.u`` and ``w.w`` (or a mapping of
+    them)."""
+    u, deflection = (w["u"], w["w"]) if isinstance(w, dict) else (w.u, w.w)
+    slope = grad(deflection)
+    return sym_grad(u) + 0.5 * _outer(slope, slope)
+
+
+# The state's fields (``w.slope``: grad w, ``w.force``: N, at the quadrature points) are
+# computed once per assembly (``_state``), not once per pair of basis functions.
 
 
 @LinearForm
 def _inplane_residual(v: Any, w: Any) -> Any:
-    return ddot(_stress(membrane_strain(w), w), sym_grad(v))
+    return ddot(w.force, sym_grad(v))
 
 
 @LinearForm
 def _coupling_residual(v: Any, w: Any) -> Any:
-    force = _stress(membrane_strain(w), w)
-    return dot(np.einsum("ij...,j...->i...", force, grad(w.w)), grad(v))
+    return dot(np.einsum("ij...,j...->i...", w.force, w.slope), grad(v))
 
 
 @BilinearForm
@@ -68,15 +73,13 @@ def _inplane_tangent(du: Any, v: Any, w: Any) -> Any:
 
 @BilinearForm
 def _cross_tangent(dw: Any, v: Any, w: Any) -> Any:  # trial: w's basis, test: u's
-    return ddot(_stress(_sym_outer(grad(w.w), grad(dw)), w), sym_grad(v))
+    return ddot(_stress(_sym_outer(w.slope, grad(dw)), w), sym_grad(v))
 
 
 @BilinearForm
 def _transverse_tangent(dw: Any, v: Any, w: Any) -> Any:
-    force = _stress(membrane_strain(w), w)
-    slope = grad(w.w)
-    geometric = dot(np.einsum("ij...,j...->i...", force, grad(dw)), grad(v))
-    material = ddot(_stress(_sym_outer(slope, grad(dw)), w), _sym_outer(slope, grad(v)))
+    geometric = dot(np.einsum("ij...,j...->i...", w.force, grad(dw)), grad(v))
+    material = ddot(_stress(_sym_outer(w.slope, grad(dw)), w), _sym_outer(w.slope, grad(v)))
     return geometric + material
 
 
@@ -108,6 +111,28 @@ def _fields(plate_basis: Any, inplane_basis: Any, w_dofs: Any, u_dofs: Any) -> d
     return {"w": plate_basis.interpolate(w_dofs), "u": inplane_basis.interpolate(u_dofs)}
 
 
+class _Coefficients:
+    """What ``_stress`` reads from a form's ``w``, outside a form."""
+
+    def __init__(self, stretching: float, poisson: float) -> None:
+        self.stretching, self.poisson = stretching, poisson
+
+
+def _state(
+    plate_basis: Any,
+    inplane_basis: Any,
+    w_dofs: Any,
+    u_dofs: Any,
+    stretching: float,
+    poisson: float,
+) -> dict[str, Any]:
+    """The forms' keywords at a state: the coefficients, grad w and N at the quadrature points."""
+    fields = _fields(plate_basis, inplane_basis, w_dofs, u_dofs)
+    slope = np.asarray(grad(fields["w"]))
+    force = _stress(membrane_strain(fields), _Coefficients(stretching, poisson))
+    return {"stretching": stretching, "poisson": poisson, "slope": slope, "force": force}
+
+
 def residual(
     plate_basis: Any,
     inplane_basis: Any,
@@ -119,10 +144,9 @@ def residual(
     poisson: float,
 ) -> tuple[Any, Any]:
     """(R_w, R_u): the energy's gradient on the plate's and the in-plane DOFs (N, N m, ...)."""
-    fields = _fields(plate_basis, inplane_basis, w_dofs, u_dofs)
-    coefficients = {"stretching": stretching, "poisson": poisson, **fields}
-    r_w = bending @ w_dofs + _coupling_residual.assemble(plate_basis, **coefficients) - load
-    r_u = _inplane_residual.assemble(inplane_basis, **coefficients)
+    state = _state(plate_basis, inplane_basis, w_dofs, u_dofs, stretching, poisson)
+    r_w = bending @ w_dofs + _coupling_residual.assemble(plate_basis, **state) - load
+    r_u = _inplane_residual.assemble(inplane_basis, **state)
     return np.asarray(r_w), np.asarray(r_u)
 
 
@@ -143,9 +167,8 @@ def tangent(
     stretching: float,
     poisson: float,
 ) -> Tangent:
-    fields = _fields(plate_basis, inplane_basis, w_dofs, u_dofs)
-    coefficients = {"stretching": stretching, "poisson": poisson, **fields}
-    ww = bending + _transverse_tangent.assemble(plate_basis, **coefficients)
-    uw = _cross_tangent.assemble(plate_basis, inplane_basis, **coefficients)
-    uu = _inplane_tangent.assemble(inplane_basis, **coefficients)
+    state = _state(plate_basis, inplane_basis, w_dofs, u_dofs, stretching, poisson)
+    ww = bending + _transverse_tangent.assemble(plate_basis, **state)
+    uw = _cross_tangent.assemble(plate_basis, inplane_basis, **state)
+    uu = _inplane_tangent.assemble(inplane_basis, **state)
     return Tangent(sp.csr_matrix(ww), sp.csr_matrix(uw), sp.csr_matrix(uu))
