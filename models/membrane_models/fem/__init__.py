@@ -13,7 +13,7 @@ Physics as small weak forms assembled with scikit-fem, one job per module:
   ``sampling``: ``sample`` a field at points; ``stress``: von Mises at a point;
 - ``von_karman``: the large-deflection plate's energy, residual and tangent; ``nonlinear``:
   ``solve_nonlinear``, its static state by Newton with load stepping, in-plane supports per
-  part.
+  part; ``nonlinear_transient``: ``step_nonlinear``, Newmark with Newton at every step.
 
 Bad input raises a ``FemError`` (a ``membrane_errors.UserError``). Nothing here imports torch.
 """
@@ -49,6 +49,7 @@ from membrane_models.fem.mesh_file import read_mesh
 from membrane_models.fem.modal import Modes, modes
 from membrane_models.fem.models import Membrane, Model, Plate
 from membrane_models.fem.nonlinear import NonlinearSolution, membrane_force, solve_nonlinear
+from membrane_models.fem.nonlinear_transient import NonlinearHistory, step_nonlinear
 from membrane_models.fem.sampling import derivatives, sample, sampler
 from membrane_models.fem.static import patch_load, point_load, pressure_load, solve
 from membrane_models.fem.stress import SurfaceStress, surface_stress
@@ -72,6 +73,7 @@ __all__ = [
     "MissingMesher",
     "Model",
     "Modes",
+    "NonlinearHistory",
     "NonlinearSolution",
     "OutsideDomain",
     "Plate",
@@ -97,5 +99,6 @@ __all__ = [
     "sampler",
     "solve",
     "solve_nonlinear",
+    "step_nonlinear",
     "surface_stress",
 ]

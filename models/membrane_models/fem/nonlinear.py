@@ -35,7 +35,14 @@ from membrane_models.fem.sampling import derivatives, locate
 from membrane_models.fem.static import solve
 from membrane_models.fem.von_karman import residual, tangent
 
-__all__ = ["INPLANE", "InPlane", "NonlinearSolution", "membrane_force", "solve_nonlinear"]
+__all__ = [
+    "INPLANE",
+    "Equilibrium",
+    "InPlane",
+    "NonlinearSolution",
+    "membrane_force",
+    "solve_nonlinear",
+]
 
 InPlane = Literal["held", "sliding", "free"]
 INPLANE: tuple[str, ...] = get_args(InPlane)
@@ -81,12 +88,8 @@ def solve_nonlinear(
         raise InvalidLoad(f"a load is a finite vector of {system.dofs} values, not {f.shape}")
     if steps is not None and not (isinstance(steps, int) and steps >= 1):
         raise InvalidSolve(f"steps must be a positive integer or None, not {steps!r}")
-    inplane_basis = system.basis.with_element(ElementVector(ElementTriP2()))
-    held = _inplane_constraints(system, inplane_basis, inplane)
-    free_u = np.setdiff1d(np.arange(inplane_basis.N), held)
-    linear = sp.csr_matrix(system.stiffness)  # bending, and any pre-tension and foundation
-    stretching = model.youngs_modulus * model.thickness / (1.0 - model.poisson**2)
-    problem = _Problem(system, inplane_basis, linear, free_u, stretching, model.poisson)
+    problem = Equilibrium.of(system, inplane, sp.csr_matrix(system.stiffness))
+    inplane_basis = problem.inplane_basis
     count = steps or _steps(system, f)
     w, u = np.zeros(system.dofs), np.zeros(inplane_basis.N)
     done, increment, iterations, taken, last = 0.0, 1.0 / count, 0, 0, 0.0
@@ -140,9 +143,10 @@ def _steps(system: System, load: FloatArray) -> int:
     return max(1, min(200, math.ceil(ratio)))
 
 
-class _Problem:
+class Equilibrium:
     """The coupled Newton system on the admissible DOFs: w through the plate's ``transform``,
-    u with its held DOFs dropped."""
+    u with its held DOFs dropped. ``bending`` is the linear part of the w-block (the plate's
+    stiffness; a time step adds its inertia, ``nonlinear_transient``)."""
 
     def __init__(
         self,
@@ -156,6 +160,20 @@ class _Problem:
         self.system, self.inplane_basis, self.bending = system, inplane_basis, bending
         self.free_u, self.stretching, self.poisson = free_u, stretching, poisson
         self.pick_u = sp.identity(inplane_basis.N, format="csr")[:, free_u]
+
+    @classmethod
+    def of(
+        cls, system: System, inplane: Mapping[str, str] | str, linear: sp.csr_matrix
+    ) -> Equilibrium:
+        """The problem of ``system`` (a plate) with ``inplane`` supports and ``linear`` as the
+        w-block's linear part."""
+        model = system.model
+        assert isinstance(model, Plate)
+        inplane_basis = system.basis.with_element(ElementVector(ElementTriP2()))
+        held = _inplane_constraints(system, inplane_basis, inplane)
+        free_u = np.setdiff1d(np.arange(inplane_basis.N), held)
+        stretching = model.youngs_modulus * model.thickness / (1.0 - model.poisson**2)
+        return cls(system, inplane_basis, linear, free_u, stretching, model.poisson)
 
     def newton(
         self, load: FloatArray, w: FloatArray, u: FloatArray, tolerance: float
