@@ -6,9 +6,9 @@ poke.py's ramp (1e-3 deep over 0.2 s, then held) on `membrane-live` under its so
 1 mm at 5 mm/s on `skin-patch` under a point tip, in process at the scene's dt with a step
 every 1 ms tick: the force on a rigid tip following the device exactly (the engine's
 position-driven probe: the tissue's physics), and the force through the default coupling
-(every tick a full step, as the haptic benchmark's reference), each as a ratio to the static
-force at the tick's depth (rigid: depth / c_static; coupled: depth / (1.2 c_static)), the
-largest and smallest per window of ticks.
+(every tick a full step: the haptic benchmark's reference, ``haptics.multirate``), each as a
+ratio to the static force at the tick's depth (rigid: depth / c_static; coupled:
+depth / (1.2 c_static)), the largest and smallest per window of ticks.
 """
 
 from __future__ import annotations
@@ -17,10 +17,9 @@ import argparse
 import sys
 
 import numpy as np
+from haptics import multirate  # benchmarks/haptics.py, beside this script
 
-from membrane_client.haptics import Contact, Coupling, Proxy
-from membrane_client.live_schema import MAX_DEPTH
-from membrane_models.live import Load, Probe
+from membrane_models.live import Probe
 from membrane_server.scene import load_scene
 from membrane_server.served import ServedScene
 
@@ -39,17 +38,7 @@ def press(scene: str, ticks: int = 1000) -> dict[str, np.ndarray | float]:
         out = engine.step(state, [], [Probe(at, float(depth[n]), radius)], frame=False)
         state, rigid[n] = out.state, out.probes[0].force
     static = out.probes[0].static_compliance
-    coupling, proxy = Coupling(), Proxy()
-    state, coupled = engine.start().state, np.zeros(ticks)
-    for n in range(ticks):
-        load = [Load(at, -proxy.force, radius)] if proxy.force > 0 else []
-        clear = [Probe(at, -MAX_DEPTH, radius)]
-        state = engine.step(state, load, clear, frame=False).state
-        ahead = engine.step(state, load, clear, frame=False).probes[0]
-        free = ahead.displacement + ahead.compliance * proxy.force
-        contact = Contact.ahead(free, ahead.compliance, ahead.static_compliance, n)
-        proxy = coupling.render(float(depth[n]), proxy, contact, PERIOD)
-        coupled[n] = proxy.force
+    coupled = multirate(engine, 1.0 / PERIOD, np.full(ticks, at[0]), depth, at[1], radius)
     return {
         "depth": depth,
         "rigid": rigid / (depth / static),

@@ -58,18 +58,26 @@ def script(rate: float) -> tuple[np.ndarray, np.ndarray]:
     return x, depth
 
 
-def multirate(engine: Any, rate: float, x: np.ndarray, depth: np.ndarray) -> np.ndarray:
+def multirate(
+    engine: Any,
+    rate: float,
+    x: np.ndarray,
+    depth: np.ndarray,
+    y: float = AT[1],
+    radius: float = 0.0,
+) -> np.ndarray:
     """The loop's arithmetic in process: a step every dt with the last force as its load, the
-    ticks between rendered from the step's look-ahead (as ``haptics.network`` and ``loop``)."""
+    ticks between rendered from the step's look-ahead (as ``haptics.network`` and ``loop``);
+    the tip at (x[n], y) with a footprint of ``radius``."""
     period, coupling = 1.0 / rate, Coupling()
     per_step = max(1, round(engine.dt / period))
     state = engine.start().state
     contact, proxy, forces = Contact(0.0, math.nan), Proxy(), np.zeros(x.size)
     for n in range(x.size):
         if n % per_step == 0:  # the network side's step, with the force rendered last tick
-            at = (float(x[n]), AT[1])
-            load = [Load(at, -proxy.force, 0.0)] if proxy.force > 0 else []
-            clear = [Probe(at, -MAX_DEPTH, 0.0)]
+            at = (float(x[n]), y)
+            load = [Load(at, -proxy.force, radius)] if proxy.force > 0 else []
+            clear = [Probe(at, -MAX_DEPTH, radius)]
             state = engine.step(state, load, clear, frame=False).state
             ahead = engine.step(state, load, clear, frame=False).probes[0]
             free = ahead.displacement + ahead.compliance * proxy.force

@@ -46,7 +46,14 @@ from numpy.typing import NDArray
 from membrane_models.fem.errors import InvalidSupports, RigidBodyModes
 from membrane_models.fem.geometry import Domain
 
-__all__ = ["CONDITIONS", "Condition", "Constraints", "constrain", "resolve_supports"]
+__all__ = [
+    "CONDITIONS",
+    "Condition",
+    "Constraints",
+    "constrain",
+    "resolve_parts",
+    "resolve_supports",
+]
 
 Condition = Literal["clamped", "simply_supported", "free"]
 CONDITIONS: tuple[str, ...] = get_args(Condition)
@@ -71,17 +78,25 @@ class Constraints:
 
 def resolve_supports(domain: Domain, supports: Mapping[str, str] | str) -> dict[str, Condition]:
     """Part -> condition, checked: one condition for every part, or a mapping of some."""
-    if isinstance(supports, str):
-        supports = dict.fromkeys(domain.parts, supports)
-    resolved: dict[str, Condition] = {}
-    for part, condition in supports.items():
+    return cast(dict[str, Condition], resolve_parts(domain, supports, CONDITIONS, "condition"))
+
+
+def resolve_parts(
+    domain: Domain, conditions: Mapping[str, str] | str, known: tuple[str, ...], what: str
+) -> dict[str, str]:
+    """Part -> one of ``known``, checked against the domain's parts (``what`` names the kind
+    of condition in messages): one condition for every part, or a mapping of some."""
+    if isinstance(conditions, str):
+        conditions = dict.fromkeys(domain.parts, conditions)
+    resolved: dict[str, str] = {}
+    for part, condition in conditions.items():
         if part not in domain.parts:
             raise InvalidSupports(f"no boundary part {part!r} (parts: {', '.join(domain.parts)})")
-        if condition not in CONDITIONS:
+        if condition not in known:
             raise InvalidSupports(
-                f"unknown condition {condition!r} on {part!r} (conditions: {', '.join(CONDITIONS)})"
+                f"unknown {what} {condition!r} on {part!r} (conditions: {', '.join(known)})"
             )
-        resolved[part] = cast(Condition, condition)
+        resolved[part] = condition
     return resolved
 
 

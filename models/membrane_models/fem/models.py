@@ -81,6 +81,12 @@ class Plate:
         return self.youngs_modulus * self.thickness**3 / (12.0 * (1.0 - self.poisson**2))
 
     @property
+    def stretching_stiffness(self) -> float:
+        """A = E h / (1 - nu^2), N/m: the in-plane (plane stress) stiffness of a large
+        deflection's stretch (``fem.von_karman``)."""
+        return self.youngs_modulus * self.thickness / (1.0 - self.poisson**2)
+
+    @property
     def areal_density(self) -> float:
         """rho h, kg/m^2."""
         return self.density * self.thickness

@@ -29,11 +29,12 @@ from scipy.sparse.linalg import splu
 from skfem import ElementTriP2, ElementVector
 
 from membrane_models.fem.assembly import System
+from membrane_models.fem.boundary import resolve_parts
 from membrane_models.fem.errors import InvalidLoad, InvalidModel, InvalidSolve, InvalidSupports
 from membrane_models.fem.models import Plate
 from membrane_models.fem.sampling import derivatives, locate
 from membrane_models.fem.static import solve
-from membrane_models.fem.von_karman import residual, tangent
+from membrane_models.fem.von_karman import membrane_stress, residual, tangent
 
 __all__ = [
     "INPLANE",
@@ -129,9 +130,7 @@ def membrane_force(
         field = basis.elem.gbasis(basis.mapping, local, k, tind=cells)[0]
         gradient += coefficients[k, 0] * np.asarray(field.grad)[:, :, 0, 0]
     strain = 0.5 * (gradient + gradient.T) + 0.5 * np.outer(slope[0], slope[0])
-    stretching = plate.youngs_modulus * plate.thickness / (1.0 - plate.poisson**2)
-    nu = plate.poisson
-    force = stretching * ((1.0 - nu) * strain + nu * np.trace(strain) * np.eye(2))
+    force = membrane_stress(strain, plate.stretching_stiffness, plate.poisson)
     return float(force[0, 0]), float(force[1, 1]), float(force[0, 1])
 
 
@@ -172,8 +171,12 @@ class Equilibrium:
         inplane_basis = system.basis.with_element(ElementVector(ElementTriP2()))
         held = _inplane_constraints(system, inplane_basis, inplane)
         free_u = np.setdiff1d(np.arange(inplane_basis.N), held)
-        stretching = model.youngs_modulus * model.thickness / (1.0 - model.poisson**2)
-        return cls(system, inplane_basis, linear, free_u, stretching, model.poisson)
+        return cls(system, inplane_basis, linear, free_u, model.stretching_stiffness, model.poisson)
+
+    def with_linear(self, linear: sp.csr_matrix) -> Equilibrium:
+        """The same problem with another linear w-block (a time step's added inertia)."""
+        return Equilibrium(self.system, self.inplane_basis, linear, self.free_u,
+                           self.stretching, self.poisson)  # fmt: skip
 
     def newton(
         self, load: FloatArray, w: FloatArray, u: FloatArray, tolerance: float
@@ -213,18 +216,11 @@ def _inplane_constraints(
 ) -> FloatArray:
     """The in-plane DOFs held (indices into ``basis``), checked against rigid motions."""
     domain = system.domain
-    conditions = dict.fromkeys(domain.parts, inplane) if isinstance(inplane, str) else dict(inplane)
+    conditions = resolve_parts(domain, inplane, INPLANE, "in-plane condition")
     held: list[Any] = []
     directions: list[int] = []  # 0: u_x held somewhere, 1: u_y held somewhere
     anchored = False
     for part, condition in conditions.items():
-        if part not in domain.parts:
-            raise InvalidSupports(f"no boundary part {part!r} (parts: {', '.join(domain.parts)})")
-        if condition not in INPLANE:
-            raise InvalidSupports(
-                f"unknown in-plane condition {condition!r} on {part!r} "
-                f"(conditions: {', '.join(INPLANE)})"
-            )
         if condition == "free":
             continue
         facets = domain.parts[part]

@@ -68,8 +68,8 @@ def step_nonlinear(
     force = _load_function(system, load)
     inertia = 4.0 / dt**2
     mass = sp.csr_matrix(system.mass)
-    problem = Equilibrium.of(system, inplane, sp.csr_matrix(system.stiffness + inertia * mass))
     plain = Equilibrium.of(system, inplane, sp.csr_matrix(system.stiffness))
+    problem = plain.with_linear(sp.csr_matrix(system.stiffness + inertia * mass))
     if steps * (system.dofs + problem.inplane_basis.N) > MAX_VALUES:
         raise InvalidSolve(f"{steps} steps of {system.dofs} DOFs: more than {MAX_VALUES} values")
     w, u = np.zeros(system.dofs), np.zeros(problem.inplane_basis.N)

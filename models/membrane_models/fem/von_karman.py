@@ -15,8 +15,9 @@ state (w on the plate's basis, u on a vector P2 basis sharing its quadrature):
 - K_uu = C(sym grad du) : sym grad v,  K_uw = C(sym(grad w (x) grad dw)) : sym grad v,
 - K_ww = bending + (N grad dw) . grad v + C(sym(grad w (x) grad dw)) : sym(grad w (x) grad v),
 
-with C(e) = A [(1 - nu) e + nu tr(e) I] and K_wu the transpose of K_uw. Linearised at w = 0
-this is the Kirchhoff plate and a decoupled plane stress problem: the small-load limit.
+with C(e) = A [(1 - nu) e + nu tr(e) I] (``membrane_stress``) and K_wu the transpose of K_uw.
+Linearised at w = 0 this is the Kirchhoff plate and a decoupled plane stress problem: the
+small-load limit.
 """
 
 from __future__ import annotations
@@ -28,16 +29,17 @@ import scipy.sparse as sp
 from skfem import BilinearForm, Functional, LinearForm
 from skfem.helpers import ddot, dot, eye, grad, sym_grad, trace
 
-__all__ = ["Tangent", "energy", "membrane_strain", "residual", "tangent"]
+__all__ = ["Tangent", "energy", "membrane_strain", "membrane_stress", "residual", "tangent"]
 
 
 def _outer(a: Any, b: Any) -> Any:
     return np.einsum("i...,j...->ij...", a, b)
 
 
-def _stress(e: Any, w: Any) -> Any:
-    """C(e): the membrane force of strain e (N/m)."""
-    return w.stretching * ((1.0 - w.poisson) * e + w.poisson * eye(trace(e), 2))
+def membrane_stress(e: Any, stretching: float, poisson: float) -> Any:
+    """C(e) = A [(1 - nu) e + nu tr(e) I]: the membrane force (N/m) of a strain e, A the
+    plate's ``stretching_stiffness``."""
+    return stretching * ((1.0 - poisson) * e + poisson * eye(trace(e), 2))
 
 
 def membrane_strain(w: Any) -> Any:
@@ -64,13 +66,13 @@ def _coupling_residual(v: Any, w: Any) -> Any:
 
 @BilinearForm
 def _inplane_tangent(du: Any, v: Any, w: Any) -> Any:
-    return ddot(_stress(sym_grad(du), w), sym_grad(v))
+    return ddot(membrane_stress(sym_grad(du), w.stretching, w.poisson), sym_grad(v))
 
 
 @Functional
 def _stretching_energy(w: Any) -> Any:
     strain = membrane_strain(w)
-    return 0.5 * ddot(_stress(strain, w), strain)
+    return 0.5 * ddot(membrane_stress(strain, w.stretching, w.poisson), strain)
 
 
 def energy(
@@ -95,13 +97,6 @@ def _fields(plate_basis: Any, inplane_basis: Any, w_dofs: Any, u_dofs: Any) -> d
     return {"w": plate_basis.interpolate(w_dofs), "u": inplane_basis.interpolate(u_dofs)}
 
 
-class _Coefficients:
-    """What ``_stress`` reads from a form's ``w``, outside a form."""
-
-    def __init__(self, stretching: float, poisson: float) -> None:
-        self.stretching, self.poisson = stretching, poisson
-
-
 def _state(
     plate_basis: Any,
     inplane_basis: Any,
@@ -113,7 +108,7 @@ def _state(
     """The forms' keywords at a state: the coefficients, grad w and N at the quadrature points."""
     fields = _fields(plate_basis, inplane_basis, w_dofs, u_dofs)
     slope = np.asarray(grad(fields["w"]))
-    force = _stress(membrane_strain(fields), _Coefficients(stretching, poisson))
+    force = membrane_stress(membrane_strain(fields), stretching, poisson)
     return {"stretching": stretching, "poisson": poisson, "slope": slope, "force": force}
 
 
