@@ -106,6 +106,12 @@ class TableCache:
 
     def load(self, key: str) -> LiveTables | None:
         """The entry of ``key``, or None when absent, unreadable or not matching its key."""
+        entry = self.load_entry(key)
+        return None if entry is None else _tables(*entry)
+
+    def load_entry(self, key: str) -> tuple[dict[str, Any], dict[str, np.ndarray]] | None:
+        """Any entry's metadata and arrays (another table kind's: ``reduced_cache``), or None
+        when absent, unreadable or not matching its key."""
         path = self.path(key)
         if not path.exists():
             return None
@@ -119,11 +125,16 @@ class TableCache:
         if meta.get("key") != key or meta.get("digest") != _digest(arrays):
             logger.warning("fem cache entry %s does not match its key: rebuilding it", path)
             return None
-        return _tables(meta, arrays)
+        return meta, arrays
 
     def store(self, key: str, tables: LiveTables) -> Path:
         """Write the entry of ``key`` (atomically: a temporary file renamed into place)."""
         arrays, meta = _arrays(tables)
+        return self.store_entry(key, arrays, meta)
+
+    def store_entry(self, key: str, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> Path:
+        """Write any entry's arrays and metadata under ``key`` (atomically)."""
+        meta = dict(meta)
         meta.update(key=key, digest=_digest(arrays))
         self.directory.mkdir(parents=True, exist_ok=True)
         buffer = io.BytesIO()

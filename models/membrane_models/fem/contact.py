@@ -47,7 +47,7 @@ from membrane_models.live.inputs import parse_tools
 from membrane_models.live.interface import Tool, ToolReading
 from membrane_models.live.tools import tool_points, tool_readings
 
-__all__ = ["Pressed", "press"]
+__all__ = ["Pressed", "press", "solve_obstacle"]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
@@ -101,7 +101,7 @@ def press(system: System, tools: Sequence[Tool], load: ArrayLike | None = None) 
         shape=(rows.count, system.dofs),
     )
     g = sp.csr_matrix(picks @ system.transform)
-    reduced, forces = _obstacle(system.reduced_stiffness, g, system.reduce(f), rows.surface)
+    reduced, forces = solve_obstacle(system.reduced_stiffness, g, system.reduce(f), rows.surface)
     u = system.expand(reduced)
     w = np.asarray(picks @ u)
     readings = tool_readings(checked, rows, forces, w)  # per row: w, forces, surface, owner
@@ -114,7 +114,7 @@ def _value_nodes(system: System) -> tuple[IntArray, FloatArray]:
     return dofs, np.ascontiguousarray(system.domain.mesh.p.T)
 
 
-def _obstacle(
+def solve_obstacle(
     k: sp.spmatrix, g: sp.csr_matrix, f: FloatArray, surface: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """r and lambda of the obstacle problem (module docstring)."""

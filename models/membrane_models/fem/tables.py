@@ -47,6 +47,7 @@ __all__ = [
     "FootprintTables",
     "LiveTables",
     "footprint_loads",
+    "inside_mesh",
     "lattice_points",
     "live_tables",
 ]
@@ -163,7 +164,7 @@ def live_tables(
     lower = (float(points[0].min()), float(points[1].min()))
     upper = (float(points[0].max()), float(points[1].max()))
     xy = lattice_points(lower, upper, lattice)
-    inside = _inside_mesh(system, xy)
+    inside = inside_mesh(system, xy)
     shapes = np.zeros((xy.shape[0], modes.count))
     if inside.any():
         shapes[inside] = sampler(system, xy[inside]) @ modes.shapes
@@ -389,7 +390,7 @@ def _point_own(residual: _Residual, loads: FloatArray, weighted: FloatArray) -> 
 def _point_loads(system: System, centres: FloatArray) -> FloatArray:
     """Unit point forces at ``centres`` (N, centres): the basis evaluated there; 0 off the mesh."""
     out = np.zeros((system.dofs, centres.shape[0]))
-    inside = _inside_mesh(system, centres)
+    inside = inside_mesh(system, centres)
     if inside.any():
         out[:, inside] = sampler(system, centres[inside]).T.toarray()
     return out
@@ -419,7 +420,7 @@ def boundary_segments(system: System) -> FloatArray:
     return np.ascontiguousarray(np.transpose(mesh.p[:, facets], (2, 1, 0)))
 
 
-def _inside_mesh(system: System, xy: FloatArray) -> NDArray[np.bool_]:
+def inside_mesh(system: System, xy: FloatArray) -> NDArray[np.bool_]:
     """Which points lie on the mesh (points on its boundary count)."""
     extent = float(np.ptp(system.domain.mesh.p, axis=1).max())
     return inside_boundary(xy, boundary_segments(system), 1e-12 * extent)

@@ -96,8 +96,11 @@ def solve_mixed(
     return force
 
 
-def solve_points(compliance: FloatArray, violation: FloatArray) -> FloatArray:
-    """``solve_contact`` for a P-matrix C that need not be symmetric (a tool's points).
+def solve_points(
+    compliance: FloatArray, violation: FloatArray, start: NDArray[np.bool_] | None = None
+) -> FloatArray:
+    """``solve_contact`` for a P-matrix C that need not be symmetric (a tool's points), from
+    the active set ``start`` when given (a Newton iterate's last: often already the answer).
 
     Raises:
         InvalidProbe: no force can hold the tissue (a row of zero compliance pressed).
@@ -112,7 +115,7 @@ def solve_points(compliance: FloatArray, violation: FloatArray) -> FloatArray:
     if not np.diag(c).min() > 0.0:
         raise InvalidProbe("a tool's point cannot move (zero compliance): it cannot be pressed")
     gap_tol, force_tol = _tolerances(c, b)
-    active = b > 0.0
+    active = b > 0.0 if start is None else np.array(start, dtype=bool)
     fewest, tries = n + 1, _BLOCK_TRIES
     for _ in range(64 * n * n):  # Murty's pivots alone end for a P-matrix; this is a guard
         force = _forces(c, b, active)

@@ -1,0 +1,360 @@
+"""The ``fem-nonlinear`` engine kind: the von Karman plate, reduced, stepped live under tools.
+
+The tissue's plate reduced to its lowest modes with the in-plane field condensed
+(``reduced_plate``: internal forces cubic in the modal coordinates, exact for deflections in
+the modes' span), stepped by the energy-consistent scheme with Newton and the tools' contact
+inside it (``reduced_dynamics``), what the modes do not carry kept as the linear static
+residual under the tools' point forces. The reduced plate is built once per tissue, lattice,
+mode count and in-plane condition and cached beside the linear engine's tables
+(``reduced_cache``).
+
+Units: SI, as the ``fem`` engine's: a tool's centre, radius and depth in m (depth > 0 presses
+along -z), its force in N (>= 0, the tissue pushed along -z), frames in m. It takes rigid tools
+and initial shapes; loads, probes and grasps are refused (``inputs``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from membrane_models.fem.inside import inside_boundary
+from membrane_models.fem.models import Plate
+from membrane_models.fem.nonlinear import INPLANE
+from membrane_models.fem.reduced_cache import cached_reduced_plate
+from membrane_models.fem.reduced_dynamics import (
+    IterationMatrix,
+    NotConverged,
+    StepCoefficients,
+    step_reduced,
+)
+from membrane_models.fem.reduced_plate import ReducedPlate
+from membrane_models.fem.tissue import Tissue
+from membrane_models.live.errors import InvalidEngineSettings, InvalidState, InvalidTool
+from membrane_models.live.inputs import MAX_TOOL_POINTS, MAX_TOOLS, parse_tools
+from membrane_models.live.interface import (
+    TOOL_KINDS,
+    Grasp,
+    Load,
+    Probe,
+    Start,
+    StepResult,
+    Tool,
+    ToolReading,
+)
+from membrane_models.live.projection import checked_shape
+from membrane_models.live.stepper import positive
+from membrane_models.live.tools import ToolPoints, tool_points, tool_readings
+
+__all__ = [
+    "DEFAULT_MODES",
+    "NONLINEAR_OPTIONS",
+    "NonlinearPlateEngine",
+    "NonlinearPlateState",
+    "build_nonlinear_engine",
+]
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
+DEFAULT_MODES = 20
+# Deeper than this many thicknesses the rotations are no longer moderate (slopes near 1 on the
+# skin patch at 4 h): the von Karman plate is not the tissue's model there.
+_DEPTH_PER_THICKNESS = 4.0
+_MAX_MODES = 40  # G has r^4 entries: 40 modes hold 20 MB and cost about 1 ms a Newton iteration
+_STATE_OVERHEAD = 2048
+
+NONLINEAR_OPTIONS = {
+    "modes": f"the plate's lowest modes reduced to (default {DEFAULT_MODES}, at most {_MAX_MODES})",
+    "inplane": 'the edges\' in-plane condition: "held" (default), "sliding" or "free"',
+}
+
+
+@dataclass(frozen=True)
+class NonlinearPlateState:
+    """The reduced plate's state: immutable, so a refused or retried step leaves it as it was.
+
+    Attributes:
+        step, time: steps taken and step * dt (s).
+        q, v: the reduced coordinates and their rates.
+        points, forces: the lattice points under the last step's tools and their forces (N),
+            whose static residual the frame adds.
+    """
+
+    step: int
+    time: float
+    q: FloatArray
+    v: FloatArray
+    points: IntArray
+    forces: FloatArray
+    owner: object = field(default=None, repr=False, compare=False)
+    matrix: IterationMatrix | None = field(default=None, repr=False, compare=False)
+
+
+class NonlinearPlateEngine:
+    """The reduced von Karman plate as a live engine (module docstring)."""
+
+    kind = "fem-nonlinear"
+
+    def __init__(
+        self,
+        tissue: Tissue,
+        lattice: tuple[int, int],
+        dt: float,
+        *,
+        modes: int = DEFAULT_MODES,
+        inplane: str = "held",
+        plate: ReducedPlate | None = None,
+    ) -> None:
+        if not isinstance(tissue.model, Plate):
+            raise InvalidEngineSettings("the fem-nonlinear engine steps a plate, not a membrane")
+        self.tissue = tissue
+        self._dt = positive(dt, "dt")
+        self.inplane = inplane
+        self.plate = (
+            plate if plate is not None else cached_reduced_plate(tissue, lattice, modes, inplane)
+        )
+        self.damping = tissue.damping_ratios(self.plate.omega)
+        self.coefficients = StepCoefficients.of(self.plate, self._dt, self.damping)
+        self.max_depth = _DEPTH_PER_THICKNESS * tissue.model.thickness
+        self._coordinates = self.plate.coordinates
+        self._owner = object()
+        movable = self.plate.shapes[self.plate.movable]
+        self._inverse = np.linalg.pinv(movable)
+        self._zeros = np.zeros(self.plate.size)
+        self._zeros.setflags(write=False)
+        self._no_points = np.zeros(0, dtype=np.intp)
+        self._no_points.setflags(write=False)
+        self._last_tool: tuple[tuple[object, ...], ToolPoints] | None = None
+
+    # -- the interface ----------------------------------------------------------------------
+
+    @property
+    def spatial_dims(self) -> int:
+        return 2
+
+    @property
+    def lattice_shape(self) -> tuple[int, ...]:
+        return self.plate.lattice
+
+    @property
+    def dt(self) -> float:
+        return self._dt
+
+    @property
+    def inputs(self) -> frozenset[str]:
+        """Rigid tools and initial shapes."""
+        return frozenset({"tools", "initial"})
+
+    @property
+    def engine_bytes(self) -> int:
+        """The reduced plate's arrays (the quartic, the shapes and the residual)."""
+        p = self.plate
+        return int(p.quartic.nbytes + p.shapes.nbytes + p.residual.nbytes + self._inverse.nbytes)
+
+    @property
+    def state_bytes(self) -> int:
+        """q and v, the forces of at most every tool's points with their indices, and the
+        iteration matrix (the LU, the points' response and compliance)."""
+        r, points = self.plate.size, MAX_TOOLS * MAX_TOOL_POINTS
+        matrix = 8 * (r * r + r + r * points + points * points + points)
+        return 2 * 8 * r + 16 * points + matrix + _STATE_OVERHEAD
+
+    def describe(self) -> dict[str, object]:
+        p = self.plate
+        return {
+            "engine": self.kind,
+            "inputs": sorted(self.inputs),
+            "tissue": self.tissue.name,
+            "model": "von Karman plate, reduced: the lowest modes, the in-plane field condensed",
+            "inplane": self.inplane,
+            "lattice": list(p.lattice),
+            "dt": self._dt,
+            "damping": self.damping if isinstance(self.damping, float) else "per mode",
+            "modes": p.modes,
+            "reduced_size": p.size,
+            "frequency_range_hz": [float(w / (2 * math.pi)) for w in (p.omega[0], p.omega[-1])],
+            "integrator": "energy-consistent discrete gradient, Newton in the reduced space",
+            "units": "SI",
+            "lower": list(p.lower),
+            "upper": list(p.upper),
+            "max_depth": self.max_depth,
+            "max_tools": MAX_TOOLS,
+            "max_tool_points": MAX_TOOL_POINTS,
+            "tool_kinds": list(TOOL_KINDS),
+            "memory_bytes": self.engine_bytes,
+            "engine_bytes": self.engine_bytes,
+            "state_bytes": self.state_bytes,
+        }
+
+    def contains(self, at: tuple[float, ...]) -> bool:
+        """Whether a centre lies on the plate (``interface.BoundedEngine``)."""
+        point = np.array([at[:2]], dtype=np.float64)
+        extent = max(b - a for a, b in zip(self.plate.lower, self.plate.upper, strict=True))
+        return bool(inside_boundary(point, self.plate.boundary, 1e-12 * extent)[0])
+
+    def domain_text(self) -> str:
+        lower, upper = self.plate.lower, self.plate.upper
+        return " x ".join(f"[{a:.6g}, {b:.6g}]" for a, b in zip(lower, upper, strict=True)) + " m"
+
+    def start(
+        self, displacement: ArrayLike | None = None, velocity: ArrayLike | None = None
+    ) -> Start[NonlinearPlateState]:
+        """The state at t = 0, at rest or from shapes on the lattice (least squares on the
+        points the plate can move at).
+
+        Raises:
+            InvalidShape: a shape of the wrong size, or with NaN or inf.
+        """
+        q, q_residual = self._project(displacement, "displacement")
+        v, v_residual = self._project(velocity, "velocity")
+        state = NonlinearPlateState(0, 0.0, q, v, self._no_points, np.zeros(0), self._owner)
+        return Start(state, q_residual, v_residual)
+
+    def step(
+        self,
+        state: NonlinearPlateState,
+        loads: Sequence[Load] = (),
+        probes: Sequence[Probe] = (),
+        *,
+        frame: bool = True,
+        grasps: Sequence[Grasp] = (),
+        tools: Sequence[Tool] = (),
+    ) -> StepResult[NonlinearPlateState]:
+        """One step with rigid ``tools`` pressing (none: the plate rings freely).
+
+        Raises:
+            InvalidTool: a bad tool, one deeper than ``max_depth``, or a step Newton cannot
+                solve; ``state`` is unchanged (it always is).
+            InvalidState: a state from another engine.
+        """
+        self._check(state)
+        if loads or probes or grasps:  # the server refuses them first (``inputs``)
+            raise InvalidTool("the fem-nonlinear engine takes rigid tools only")
+        checked = parse_tools(tools, 2) if tools else ()
+        for index, tool in enumerate(checked):
+            if tool.depth > self.max_depth:
+                raise InvalidTool(
+                    f"tool {index}: depth {tool.depth:.6g} m is past {self.max_depth:.6g} m "
+                    f"({_DEPTH_PER_THICKNESS:g} thicknesses), where the rotations are no longer "
+                    "moderate"
+                )
+        points = self._points(checked)
+        same = np.array_equal(points.indices, state.points)
+        start = state.forces > 0.0 if same and state.forces.size else None
+        try:
+            solved = step_reduced(self.plate, self.coefficients, state.q, state.v,
+                                  points.indices, points.surface, start=start,
+                                  matrix=state.matrix)  # fmt: skip
+        except NotConverged:
+            raise InvalidTool(
+                "this step's contact could not be solved: the tools moved too far in one step"
+            ) from None
+        q, v = solved.q, solved.v
+        q.flags.writeable = v.flags.writeable = False
+        index = state.step + 1
+        new = NonlinearPlateState(index, index * self._dt, q, v, points.indices, solved.forces,
+                                  self._owner, solved.matrix)  # fmt: skip
+        readings = _readings(checked, points, solved.forces, solved.displacement)
+        return StepResult(new, self.frame(new) if frame else None, (), None, (), readings)
+
+    def frame(self, state: NonlinearPlateState) -> FloatArray:
+        """Displacements on the lattice (x-major, flattened), m: the reduced plate plus the
+        residual under the tools' forces."""
+        self._check(state)
+        values = self.plate.shapes @ state.q
+        if state.forces.size:
+            values -= self.plate.residual[:, state.points] @ state.forces
+        return np.asarray(values)
+
+    def energy(self, state: NonlinearPlateState) -> float:
+        """Kinetic, bending and stretching energy of the reduced plate (J)."""
+        self._check(state)
+        q, v = state.q, state.v
+        bending = 0.5 * float(np.sum(self.plate.omega**2 * q * q))
+        return 0.5 * float(v @ v) + bending + self.plate.stretching_energy(q)
+
+    # -- helpers ----------------------------------------------------------------------------
+
+    def _points(self, tools: Sequence[Tool]) -> ToolPoints:
+        """The lattice points under ``tools``. One tool's are kept from the last step where
+        only its depth changed (a press): its surface moves down by the depth, whatever its
+        kind (``live.tools.tool_surface``)."""
+        if len(tools) != 1:
+            return tool_points(tools, self._coordinates, self.plate.movable, MAX_TOOL_POINTS)
+        tool = tools[0]
+        key = (tool.kind, tool.at, tool.radius)
+        if self._last_tool is None or self._last_tool[0] != key:
+            level = Tool(tool.kind, tool.at, 0.0, tool.radius)
+            at_rest = tool_points([level], self._coordinates, self.plate.movable,
+                                  MAX_TOOL_POINTS)  # fmt: skip
+            self._last_tool = (key, at_rest)
+        at_rest = self._last_tool[1]
+        return replace(at_rest, surface=at_rest.surface - tool.depth)
+
+    def _project(self, shape: ArrayLike | None, what: str) -> tuple[FloatArray, float]:
+        if shape is None:
+            return self._zeros, 0.0
+        values = checked_shape(shape, self.plate.lattice, what)
+        q = self._inverse @ values[self.plate.movable]
+        q.setflags(write=False)
+        norm = float(np.linalg.norm(values))
+        if norm == 0.0:
+            return q, 0.0
+        return q, float(np.linalg.norm(values - self.plate.shapes @ q)) / norm
+
+    def _check(self, state: NonlinearPlateState) -> None:
+        if not isinstance(state, NonlinearPlateState) or state.owner is not self._owner:
+            raise InvalidState("this state was not made by this engine (use its start())")
+
+
+def _readings(
+    tools: Sequence[Tool], points: ToolPoints, forces: FloatArray, displacement: FloatArray
+) -> tuple[ToolReading, ...]:
+    """``live.tools.tool_readings``, with one tool's in fewer array operations (a haptic
+    loop's press: they are a tenth of its step)."""
+    if len(tools) != 1 or not points.count:
+        return tool_readings(tools, points, forces, displacement)
+    tool = tools[0]
+    total = float(forces.sum())
+    clearance = points.surface - displacement
+    lowest = float(clearance.min())
+    contacts = int(np.count_nonzero(forces))
+    centre = tool.at
+    if total > 0.0:
+        centre = tuple((forces @ points.coordinates / total).tolist())
+    gap = 0.0 if contacts else max(lowest, 0.0)
+    return (ToolReading(total, centre, contacts, points.count, gap, max(-lowest, 0.0)),)
+
+
+def build_nonlinear_engine(
+    problem: object, lattice: tuple[int, ...], dt: float, options: Mapping[str, object]
+) -> NonlinearPlateEngine:
+    """The fem-nonlinear engine of a plate tissue scene.
+
+    Raises:
+        InvalidEngineSettings: not a plate tissue, a lattice not 2-D, or a bad option.
+    """
+    if not isinstance(problem, Tissue):
+        raise InvalidEngineSettings(
+            "the fem-nonlinear engine steps a physical tissue: give the scene a [tissue] table"
+        )
+    unknown = sorted(set(options) - set(NONLINEAR_OPTIONS))
+    if unknown:
+        known = ", ".join(NONLINEAR_OPTIONS)
+        raise InvalidEngineSettings(f"unknown [live] option {unknown[0]!r:.40}; known: {known}")
+    modes: Any = options.get("modes", DEFAULT_MODES)
+    if isinstance(modes, bool) or not isinstance(modes, int) or not 1 <= modes <= _MAX_MODES:
+        raise InvalidEngineSettings(f"[live] modes must be an integer in [1, {_MAX_MODES}]")
+    inplane = options.get("inplane", "held")
+    if inplane not in INPLANE:
+        raise InvalidEngineSettings(f"[live] inplane must be one of {', '.join(INPLANE)}")
+    if len(lattice) != 2:
+        raise InvalidEngineSettings("a tissue's lattice needs nx and ny")
+    return NonlinearPlateEngine(
+        problem, (int(lattice[0]), int(lattice[1])), dt, modes=modes, inplane=str(inplane)
+    )
