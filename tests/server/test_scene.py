@@ -36,8 +36,8 @@ def scene_with(**changes: Any) -> Scene:
 
 def test_builtin_scenes_are_the_documented_ones() -> None:
     assert builtin_scenes() == [
-        "membrane", "membrane-live", "rope", "rope-koopman", "rope-live", "rope-plucked",
-        "skin-disk", "skin-patch",
+        "membrane", "membrane-live", "rope", "rope-koopman", "rope-live", "rope-nonlinear",
+        "rope-plucked", "skin-disk", "skin-patch", "skin-patch-nonlinear",
     ]  # fmt: skip
 
 
@@ -152,8 +152,8 @@ def test_invalid_toml_is_a_scene_error(tmp_path: Path) -> None:
 
 def test_unknown_builtin_lists_the_known_ones() -> None:
     known = (
-        "membrane, membrane-live, rope, rope-koopman, rope-live, rope-plucked, skin-disk, "
-        "skin-patch"
+        "membrane, membrane-live, rope, rope-koopman, rope-live, rope-nonlinear, rope-plucked, "
+        "skin-disk, skin-patch, skin-patch-nonlinear"
     )
     with pytest.raises(SceneError, match=known):
         load_scene("skin")

@@ -84,9 +84,11 @@ from membrane_models.live.projection import MAX_SHAPE_VALUE
 from membrane_models.live.tools import ToolPoints, tool_points, tool_readings
 from membrane_models.live.transition import Transition, transition
 
-__all__ = ["ModalState", "ModalStepper"]
+__all__ = ["Advanced", "ModalState", "ModalStepper"]
 
 FloatArray = NDArray[np.float64]
+# A step's end before it is checked and kept: q, v, the loads' modal force, and its contact.
+Advanced = tuple[FloatArray, FloatArray, FloatArray, Any]
 
 # Python objects around a state's arrays (the dataclass, tuples, array headers), and around each
 # applied footprint (its dataclass, tuples, array headers): tracemalloc's figures, rounded up.
@@ -265,10 +267,15 @@ class ModalStepper(Generic[FootprintT]):
         checked_probes = (*checked_probes, *held)
         load_prints, probe_prints = basis.footprints(checked_loads, checked_probes, self.budget)
         load_forces = [ld.force for ld in checked_loads]
-        q, v, p1 = self._free_step(state, load_prints, load_forces)
-        readings, contact = self._contact(
-            q, v, checked_probes, probe_prints, load_prints, load_forces, len(held)
-        )
+
+        def advance(tr: Transition) -> Advanced:
+            q, v, p1 = self._free_step(state, load_prints, load_forces, tr)
+            found = self._contact(
+                q, v, checked_probes, probe_prints, load_prints, load_forces, len(held), tr
+            )
+            return q, v, p1, found
+
+        q, v, p1, (readings, contact) = self._solve_step(state, advance)
         done = self._work(p1, contact, q, state.q) if work and self.hold == "zoh" else None
         applied: list[tuple[Any, float]] = [*zip(load_prints, load_forces, strict=True)]
         for fp, reading in zip(probe_prints, readings, strict=True):
@@ -297,7 +304,11 @@ class ModalStepper(Generic[FootprintT]):
         checked_probes = parse_probes(probes, self._dims) if probes else ()
         load_prints, probe_prints = basis.footprints(checked_loads, checked_probes, self.budget)
         load_forces = [ld.force for ld in checked_loads]
-        q = self._free_q(state, self._modal_force(load_prints, load_forces), bool(load_prints))
+
+        def advance(tr: Transition) -> Advanced:
+            return (*self._free_step(state, load_prints, load_forces, tr), None)
+
+        q = self._solve_step(state, advance)[0]
         from_loads = basis.loads_residual(load_prints, load_forces)
         scale, modal_force = self._scale, basis.modal_force
         return tuple(
@@ -333,9 +344,13 @@ class ModalStepper(Generic[FootprintT]):
         if len(prints) != len(found):
             raise AssertionError("a movable lattice point lies outside the basis's domain")
         load_forces = [ld.force for ld in checked_loads]
-        q, v, p1 = self._free_step(state, load_prints, load_forces)
         applied: list[tuple[Any, float]] = [*zip(load_prints, load_forces, strict=True)]
-        forces, displacement, pressing = self._tool_contact(q, v, points, prints, applied)
+
+        def advance(tr: Transition) -> Advanced:
+            q, v, p1 = self._free_step(state, load_prints, load_forces, tr)
+            return q, v, p1, self._tool_contact(q, v, points, prints, applied, tr)
+
+        q, v, p1, (forces, displacement, pressing) = self._solve_step(state, advance)
         done = None
         if work and self.hold == "zoh":
             contact = [(basis.modal_force(fp), f) for fp, f in pressing]
@@ -350,10 +365,17 @@ class ModalStepper(Generic[FootprintT]):
         new = ModalState(index, index * self._dt, q, v, p1, tuple(applied), self._owner)
         return StepResult(new, self.frame(new) if frame else None, (), done, (), readings)
 
-    def _free_q(self, state: ModalState, p1: FloatArray, loaded: bool) -> FloatArray:
+    def _solve_step(self, state: ModalState, advance: Callable[[Transition], Advanced]) -> Advanced:
+        """The step's end from ``state``: ``advance`` (the free step and its contact) over
+        this core's transition. An engine whose step depends on its end (the nonlinear
+        string's tension, ``live.kirchhoff``) solves for it here."""
+        return advance(self.transition)
+
+    def _free_q(
+        self, state: ModalState, p1: FloatArray, loaded: bool, tr: Transition
+    ) -> FloatArray:
         """q at the end of a step without contact, the loads' modal force ``p1`` at its end
         (``loaded``: any load; under the first-order hold the previous step's count too)."""
-        tr = self.transition
         q = tr.qq * state.q
         q += tr.qv * state.v
         if self.hold == "foh":
@@ -363,12 +385,15 @@ class ModalStepper(Generic[FootprintT]):
         return np.asarray(q)
 
     def _free_step(
-        self, state: ModalState, load_prints: Sequence[FootprintT], load_forces: Sequence[float]
+        self,
+        state: ModalState,
+        load_prints: Sequence[FootprintT],
+        load_forces: Sequence[float],
+        tr: Transition,
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """q, v at the end of a step without contact, and the loads' modal force then."""
-        tr = self.transition
         p1 = self._modal_force(load_prints, load_forces)
-        q = self._free_q(state, p1, bool(load_prints))
+        q = self._free_q(state, p1, bool(load_prints), tr)
         v = tr.vq * state.q
         v += tr.vv * state.v
         if self.hold == "foh":
@@ -384,13 +409,14 @@ class ModalStepper(Generic[FootprintT]):
         points: ToolPoints,
         prints: Sequence[FootprintT],
         loads: Sequence[tuple[Any, float]],
+        tr: Transition,
     ) -> tuple[FloatArray, FloatArray, list[tuple[FootprintT, float]]]:
         """Solve the tools' points' contact, apply it to q and v in place; the points' forces
         (>= 0, along -axis), their displacements at the step's end, and the footprints that
         push with their forces."""
         if not points.count:
             return np.zeros(0), np.zeros(0), []
-        basis, tr = self.basis, self.transition
+        basis = self.basis
         free = basis.point_frame(points.indices, q, loads)
         compliance = basis.point_compliance(points.indices, prints, tr.zoh_q)
         forces = solve_points(compliance, free - points.surface)
@@ -502,17 +528,18 @@ class ModalStepper(Generic[FootprintT]):
         prints: Sequence[FootprintT | None],
         load_prints: Sequence[FootprintT],
         load_forces: Sequence[float],
-        grasps: int = 0,
+        grasps: int,
+        tr: Transition,
     ) -> tuple[tuple[ProbeReading, ...], list[tuple[FloatArray, float]]]:
         """Solve contact, apply it to q and v in place; the readings and (s, F) per contact.
         The last ``grasps`` probes are grasps: held exactly, their force of either sign."""
         footprints = [fp for fp in prints if fp is not None]
         if not footprints:
             return tuple(_outside() for _ in probes), []
-        basis, tr, scale = self.basis, self.transition, self._scale
+        basis, scale = self.basis, self._scale
         from_loads = basis.loads_residual(load_prints, load_forces)
         if len(probes) == 1 and not grasps:
-            return self._one_probe(q, v, probes[0], footprints[0], from_loads)
+            return self._one_probe(q, v, probes[0], footprints[0], from_loads, tr)
         shapes = [basis.modal_force(fp) for fp in footprints]
         gains = [tr.zoh_q * s for s in shapes]  # the end-of-step response to a unit force
         count = len(footprints)
@@ -551,9 +578,9 @@ class ModalStepper(Generic[FootprintT]):
         probe: Probe,
         footprint: FootprintT,
         from_loads: Callable[[FootprintT], float],
+        tr: Transition,
     ) -> tuple[tuple[ProbeReading, ...], list[tuple[FloatArray, float]]]:
         """``_contact`` for the haptic loop's one probe, in scalars: F = max(0, b / c)."""
-        tr = self.transition
         s = self.basis.modal_force(footprint)
         gain = tr.zoh_q * s
         free = self._scale * float(np.vdot(s, q)) + from_loads(footprint)
