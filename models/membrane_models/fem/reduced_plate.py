@@ -254,6 +254,7 @@ def _quartic(system: System, vectors: FloatArray, inplane: Mapping[str, str] | s
     xx, yy, xy = x[:, 0], x[:, 1], x[:, 2]
     trace = xx + yy
     g_pairs = a * ((1 - nu) * (xx @ xx.T + yy @ yy.T + 2.0 * xy @ xy.T) + nu * trace @ trace.T)
+    g_pairs = 0.5 * (g_pairs + g_pairs.T)  # symmetric to the last bit: (jk) <-> (lm)
     quartic = np.zeros((r, r, r, r))
     table = np.array(pairs)
     for row, (j, k) in zip(g_pairs, pairs, strict=True):

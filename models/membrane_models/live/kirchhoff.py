@@ -13,10 +13,17 @@ tension
 
 which conserves E = sum v_n^2 / 4 + c^2 S / 2 + k S^2 / 4 exactly without damping or input
 (T_bar (S1 - S0) is the potential's change), is second order and unconditionally stable.
-Given T_bar the step is linear, so loads, probes, grasps and tools are the stepping core's
-(``stepper.ModalStepper``, contact exact at the step's end); the one unknown scalar T_bar is
-solved by the secant method on T_bar = c^2 + k (S0 + S1(T_bar)) / 2, each evaluation a whole
-linear step with its contact. Damping ratios are of the linear frequencies w_n = n pi c.
+A step that takes probes, grasps or tools is backward Euler instead (theta = 1, T = c^2 + k S1):
+held at a point, the trapezoid's end velocity 2 (q1 - q0) / dt - v0 = -v0 flips sign every
+step with nothing to damp it (its mean is 0), and a held probe's force rang for ever (measured:
+0 to 0.64 at one depth after 6 s); backward Euler is L-stable, brings a held point to rest and
+keeps the static force exact, at a numerical damping ratio of about w dt / 2 while it presses
+(0.2 % of the fundamental at the scene's dt). Contact is inelastic.
+Given T the step is linear, so loads, probes, grasps and tools are the stepping core's
+(``stepper.ModalStepper``, contact exact at the step's end). The one unknown scalar T is solved
+by Newton on the free modes (a few vector operations), then the whole step is taken at it; if
+its contact moved the string, by the secant method on whole steps from there. Damping ratios
+are of the linear frequencies w_n = n pi c.
 
 Every mode the lattice resolves is stepped and there is no static correction: the residual
 flexibility of the modes beyond would need the tension too. Units: the problem's.
@@ -26,6 +33,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,6 +55,35 @@ KIRCHHOFF_OPTIONS = {
     "damping": "modal damping ratio of the linear frequencies, in [0, 1) (default 0)",
     "modes": "modes to step (default: those the lattice resolves, points - 2)",
 }
+
+
+@dataclass(frozen=True)
+class _Constants:
+    """The per-mode constants of the theta step's q1(T) = (N0 - T N1) / (D0 + T D1), with
+    N0 = from_q q0 + from_v v0 + from_force p and N1 = n1 q0 (``_free_tension``)."""
+
+    from_q: FloatArray
+    from_v: FloatArray
+    from_force: FloatArray
+    n1: FloatArray
+    d0: FloatArray
+    d1: FloatArray
+
+    @classmethod
+    def of(
+        cls, theta: float, dt: float, friction: FloatArray, kappa2: FloatArray, kept: FloatArray
+    ) -> _Constants:
+        d0 = 1.0 + theta * dt * friction
+        # N0 = (q0 + (1 - theta) dt v0) D0 + theta dt (v0 (1 - dt f (1 - theta)) + dt p)
+        from_v = (1.0 - theta) * dt * d0 + theta * dt * (1.0 - dt * friction * (1.0 - theta))
+        return cls(
+            from_q=d0 * kept,
+            from_v=from_v * kept,
+            from_force=theta * dt * dt * kept,
+            n1=theta * (1.0 - theta) * dt * dt * kappa2,
+            d0=d0,
+            d1=theta * theta * dt * dt * kappa2,
+        )
 
 
 class KirchhoffEngine(ModalEngine):
@@ -79,7 +116,8 @@ class KirchhoffEngine(ModalEngine):
         self._wavenumber2 = np.where(kept, (omega / float(problem.c)) ** 2, 0.0)
         self._friction = np.where(kept, 2.0 * np.asarray(self.damping) * omega, 0.0)
         self._kept = kept.astype(np.float64)
-        self._inertia = 2.0 / self.dt**2 + self._friction / self.dt
+        self._constants = {theta: _Constants.of(theta, self.dt, self._friction, self._wavenumber2,
+                                                self._kept) for theta in (0.5, 1.0)}  # fmt: skip
 
     def stretch(self, q: FloatArray) -> float:
         """S = sum (n pi)^2 q_n^2 / 2."""
@@ -101,38 +139,36 @@ class KirchhoffEngine(ModalEngine):
             "problem": self.problem.name,
             "c": math.sqrt(self.c2),
             "stretch": self.k,
-            "integrator": "energy-conserving trapezoidal step under the step's mean tension",
+            "integrator": "energy-conserving trapezoidal step under the step's mean tension; "
+            "backward Euler in steps with probes, grasps or tools",
             "static_correction": False,
         }
 
-    def _solve_step(self, state: ModalState, advance: Callable[[Transition], Advanced]) -> Advanced:
-        """The mean tension (module docstring): solved by Newton on the free modes with the
-        contact's modal force held (cheap: a few vector operations), then the whole step taken
-        at it; again, with the contact that step found, until the tension is the step's."""
+    def _solve_step(
+        self, state: ModalState, advance: Callable[[Transition], Advanced], constrained: bool
+    ) -> Advanced:
+        """The step's tension (module docstring): solved by Newton on the free modes with the
+        loads' modal force held (a few vector operations), then the whole step taken at it;
+        if its contact moved the string, the secant on the whole step's miss from there."""
+        theta = 1.0 if constrained else 0.5
         q0, v0 = state.q, state.v
         s0 = self.stretch(q0)
         # the loads' modal force the last step ended with (its contact's, a grasp's above all,
         # follows the tension too closely to be a better guess: measured, it costs a step)
-        held = state.load_force
-        tension = self.c2 + self.k * (s0 + 0.5 * self.dt * float(np.vdot(self._wavenumber2,
-                                                                         q0 * v0)))  # fmt: skip
-        tension = self._free_tension(q0, v0, s0, held, tension)
-        found = advance(self._trapezoid(tension))
-        miss = self._miss(tension, s0, found[0])
+        rate = float(np.vdot(self._wavenumber2, q0 * v0))  # dS/dt
+        guess = self.c2 + self.k * (s0 + theta * self.dt * rate)
+        tension = self._free_tension(theta, q0, v0, s0, state.load_force, guess)
+        found = advance(self._transition(theta, tension))
+        miss = self._miss(theta, tension, s0, found[0])
         if abs(miss) <= _TOLERANCE * tension:
             return found
-        # then the tension the free step balances with the force that step's contact added,
-        # and from there the secant on the whole step's miss (a grasp's force follows the
-        # tension closely, so holding it alone converges slowly)
-        free = self._free_modes(q0, v0, self._zeros, tension)
-        held = (found[0] - free) / self._trapezoid_gain(tension)
         previous, previous_miss = tension, miss
-        tension = self._free_tension(q0, v0, s0, held, tension)
+        tension = tension + miss
         for _ in range(_MAX_EVALUATIONS):
             if not (math.isfinite(tension) and tension > 0.0):
                 break
-            found = advance(self._trapezoid(tension))
-            miss = self._miss(tension, s0, found[0])
+            found = advance(self._transition(theta, tension))
+            miss = self._miss(theta, tension, s0, found[0])
             if abs(miss) <= _TOLERANCE * tension:
                 return found
             slope = (miss - previous_miss) / (tension - previous)
@@ -142,56 +178,58 @@ class KirchhoffEngine(ModalEngine):
             "this step's tension did not converge: its loads or depths stretch the string too far"
         )
 
-    def _free_modes(
-        self, q0: FloatArray, v0: FloatArray, force: FloatArray, tension: float
-    ) -> FloatArray:
-        """q1 of the trapezoidal step under ``tension`` and a held modal ``force``."""
-        half = 0.5 * tension * self._wavenumber2
-        numerator = (self._inertia - half) * q0 + (2.0 / self.dt) * v0 + force
-        return np.asarray(numerator / (self._inertia + half) * self._kept)
-
-    def _trapezoid_gain(self, tension: float) -> FloatArray:
-        return np.asarray(1.0 / (self._inertia + 0.5 * tension * self._wavenumber2))
-
     def _free_tension(
-        self, q0: FloatArray, v0: FloatArray, s0: float, force: FloatArray, guess: float
+        self,
+        theta: float,
+        q0: FloatArray,
+        v0: FloatArray,
+        s0: float,
+        force: FloatArray,
+        guess: float,
     ) -> float:
-        """T with T = c^2 + k (S0 + S1(T)) / 2 for the free step under ``force``: Newton."""
-        rhs = self._inertia * q0 + (2.0 / self.dt) * v0 + force
-        bent = self._wavenumber2 * q0
+        """T = c^2 + k ((1 - theta) S0 + theta S1(T)) for the free step under ``force``, by
+        Newton on q1(T) = (N0 - T N1) / (D0 + T D1) per mode (``_transition``'s step)."""
+        c = self._constants[theta]
+        kappa2 = self._wavenumber2
+        n0 = c.from_q * q0 + c.from_v * v0 + c.from_force * force
+        n1 = c.n1 * q0
+        d0, d1 = c.d0, c.d1
         tension = guess
         for _ in range(_MAX_EVALUATIONS):
-            denominator = self._inertia + 0.5 * tension * self._wavenumber2
-            q1 = (rhs - 0.5 * tension * bent) / denominator * self._kept
-            dq = -0.5 * (bent + self._wavenumber2 * q1) / denominator
-            s1 = 0.5 * float(np.vdot(self._wavenumber2, q1 * q1))
-            miss = self.c2 + 0.5 * self.k * (s0 + s1) - tension
-            slope = 0.5 * self.k * float(np.vdot(self._wavenumber2, q1 * dq)) - 1.0
+            denominator = d0 + tension * d1
+            q1 = (n0 - tension * n1) / denominator
+            dq = -(n1 + q1 * d1) / denominator
+            s1 = 0.5 * float(np.vdot(kappa2, q1 * q1))
+            miss = self.c2 + self.k * ((1.0 - theta) * s0 + theta * s1) - tension
+            slope = theta * self.k * float(np.vdot(kappa2, q1 * dq)) - 1.0
             change = -miss / slope
             tension += change
             if abs(change) <= _TOLERANCE * tension:
                 return tension
         return tension  # the whole step's check decides
 
-    def _miss(self, tension: float, s0: float, q1: FloatArray) -> float:
-        """c^2 + k (S0 + S1) / 2 - T_bar: zero at the step's tension."""
-        return self.c2 + 0.5 * self.k * (s0 + self.stretch(q1)) - tension
+    def _miss(self, theta: float, tension: float, s0: float, q1: FloatArray) -> float:
+        """c^2 + k ((1 - theta) S0 + theta S1) - T: zero at the step's tension."""
+        return self.c2 + self.k * ((1.0 - theta) * s0 + theta * self.stretch(q1)) - tension
 
-    def _trapezoid(self, tension: float) -> Transition:
-        """The trapezoidal step of every kept mode under ``tension`` (module docstring)."""
-        dt = self.dt
+    def _transition(self, theta: float, tension: float) -> Transition:
+        """The theta step of every kept mode under ``tension`` (module docstring): 1/2 the
+        trapezoid, 1 backward Euler."""
+        dt, friction = self.dt, self._friction
         stiffness = tension * self._wavenumber2
-        zoh_q = self._kept / (self._inertia + 0.5 * stiffness)
-        qq = (self._inertia - 0.5 * stiffness) * zoh_q
-        qv = (2.0 / dt) * zoh_q
+        gain = self._kept / (1.0 + theta * dt * friction + theta * theta * dt * dt * stiffness)
+        vq = -dt * stiffness * gain
+        vv = 1.0 - dt * friction * (1.0 - theta) - theta * (1.0 - theta) * dt * dt * stiffness
+        vv = vv * gain
+        zoh_v = dt * gain
         zeros = self._zeros
         return Transition(
-            qq=qq,
-            qv=qv,
-            vq=(2.0 / dt) * (qq - self._kept),
-            vv=(2.0 / dt) * qv - self._kept,
-            zoh_q=zoh_q,
-            zoh_v=(2.0 / dt) * zoh_q,
+            qq=self._kept + theta * dt * vq,
+            qv=((1.0 - theta) * dt) * self._kept + theta * dt * vv,
+            vq=vq,
+            vv=vv,
+            zoh_q=theta * dt * zoh_v,
+            zoh_v=zoh_v,
             foh0_q=zeros,
             foh0_v=zeros,
             foh1_q=zeros,

@@ -275,7 +275,8 @@ class ModalStepper(Generic[FootprintT]):
             )
             return q, v, p1, found
 
-        q, v, p1, (readings, contact) = self._solve_step(state, advance)
+        constrained = bool(checked_probes)  # probes and grasps
+        q, v, p1, (readings, contact) = self._solve_step(state, advance, constrained)
         done = self._work(p1, contact, q, state.q) if work and self.hold == "zoh" else None
         applied: list[tuple[Any, float]] = [*zip(load_prints, load_forces, strict=True)]
         for fp, reading in zip(probe_prints, readings, strict=True):
@@ -308,7 +309,7 @@ class ModalStepper(Generic[FootprintT]):
         def advance(tr: Transition) -> Advanced:
             return (*self._free_step(state, load_prints, load_forces, tr), None)
 
-        q = self._solve_step(state, advance)[0]
+        q = self._solve_step(state, advance, False)[0]
         from_loads = basis.loads_residual(load_prints, load_forces)
         scale, modal_force = self._scale, basis.modal_force
         return tuple(
@@ -350,7 +351,7 @@ class ModalStepper(Generic[FootprintT]):
             q, v, p1 = self._free_step(state, load_prints, load_forces, tr)
             return q, v, p1, self._tool_contact(q, v, points, prints, applied, tr)
 
-        q, v, p1, (forces, displacement, pressing) = self._solve_step(state, advance)
+        q, v, p1, (forces, displacement, pressing) = self._solve_step(state, advance, True)
         done = None
         if work and self.hold == "zoh":
             contact = [(basis.modal_force(fp), f) for fp, f in pressing]
@@ -365,10 +366,13 @@ class ModalStepper(Generic[FootprintT]):
         new = ModalState(index, index * self._dt, q, v, p1, tuple(applied), self._owner)
         return StepResult(new, self.frame(new) if frame else None, (), done, (), readings)
 
-    def _solve_step(self, state: ModalState, advance: Callable[[Transition], Advanced]) -> Advanced:
+    def _solve_step(
+        self, state: ModalState, advance: Callable[[Transition], Advanced], constrained: bool
+    ) -> Advanced:
         """The step's end from ``state``: ``advance`` (the free step and its contact) over
-        this core's transition. An engine whose step depends on its end (the nonlinear
-        string's tension, ``live.kirchhoff``) solves for it here."""
+        this core's transition (``constrained``: the step takes probes, grasps or tools). An
+        engine whose step depends on its end (the nonlinear string's tension,
+        ``live.kirchhoff``) solves for it here."""
         return advance(self.transition)
 
     def _free_q(
