@@ -33,7 +33,7 @@ from membrane_bench.loadtest import (
 from membrane_client.client import Client
 from membrane_client.errors import MembraneError, Timeout, UserError
 from membrane_client.frame import SceneInfo
-from membrane_client.live_schema import Probe
+from membrane_client.live_schema import Probe, Tool
 from membrane_client.protocol import Op, encode
 from membrane_client.session import Session
 
@@ -66,7 +66,9 @@ class Target:
         reply_bytes: Length of the server's reply to one benchmarked request.
         evaluator: The scene's evaluator kind (``describe``; "live" for live steps), or None.
         probe_at: Where a live step's probe presses (the middle of the scene's domain).
-        probe_radius: Its footprint's radius (a physical scene's first table radius).
+        probe_radius: Its footprint's radius (a physical scene's first table radius), or the
+            tool's.
+        press: "probe", or "tool" where the scene's engine takes rigid tools only.
     """
 
     address: str
@@ -76,6 +78,7 @@ class Target:
     evaluator: str | None
     probe_at: tuple[float, ...] = (0.5, 0.5)
     probe_radius: float = STEP_RADIUS
+    press: str = "probe"
 
 
 def probe(
@@ -119,21 +122,30 @@ def _probe_live(client: Client, info: SceneInfo, frames: bool) -> Target:
     if not info.live:
         raise BenchError(f"scene {info.name} is not live: --payload step needs a live scene")
     centre, radius = _probe_place(info)
-    probe = Probe(centre, STEP_DEPTH, radius).to_wire()
+    inputs = info.live.get("inputs", ["probes"])
+    press = "tool" if "probes" not in inputs and "tools" in inputs else "probe"
+    if press == "tool":  # a sphere a tenth of the domain across: 5 mm on the skin patch
+        extent = info.points.max(axis=0) - info.points.min(axis=0)
+        radius = float(extent.max()) / 10
+        pressing = {"tools": [Tool("sphere", centre, STEP_DEPTH, radius).to_wire()]}
+    else:
+        pressing = {"probes": [Probe(centre, STEP_DEPTH, radius).to_wire()]}
     with Session(client, info.name).open() as session:
         reply = client.request(
-            Op.STEP, scene=info.name, session=session.id, k=0, probes=[probe], frame=frames
+            Op.STEP, scene=info.name, session=session.id, k=0, frame=frames, **pressing
         )
-    return Target(client.address, info.name, (0.0,), _reply_bytes(reply), "live", centre, radius)
+    return Target(client.address, info.name, (0.0,), _reply_bytes(reply), "live", centre,
+                  radius, press)  # fmt: skip
 
 
 def _probe_place(info: SceneInfo) -> tuple[tuple[float, ...], float]:
     """The middle of the scene's domain and a radius its engine carries: a physical scene's
     extent (m) and first footprint radius, else the unit domain's middle and 0.05."""
-    if isinstance(info.live.get("radii"), list):  # a physical scene
+    if info.declared_extent is not None:  # a physical scene (in m)
         lower, upper = info.points.min(axis=0), info.points.max(axis=0)
         centre = tuple(float(a + b) / 2 for a, b in zip(lower, upper, strict=True))
-        return centre, float(info.live["radii"][0])
+        radii = info.live.get("radii")
+        return centre, float(radii[0]) if isinstance(radii, list) else STEP_RADIUS
     return tuple(0.5 for _ in range(info.points.shape[1])), STEP_RADIUS
 
 
@@ -319,7 +331,11 @@ def run_bench(
         spec = replace(spec, times=target.times, scene=target.scene)
     elif spec.payload in ("step", "step-frames"):
         spec = replace(
-            spec, scene=target.scene, probe_at=target.probe_at, probe_radius=target.probe_radius
+            spec,
+            scene=target.scene,
+            probe_at=target.probe_at,
+            probe_radius=target.probe_radius,
+            press=target.press,
         )
     session = secrets.token_hex(16)  # bench clients identify themselves as a real client does
     spec = replace(spec, session=session)

@@ -40,7 +40,7 @@ from typing import Any, Literal, Protocol
 import zmq
 from hdrh.histogram import HdrHistogram
 
-from membrane_client.live_schema import Probe
+from membrane_client.live_schema import Probe, Tool
 from membrane_client.protocol import Op, Request, peek_reply
 from membrane_errors import UserError
 
@@ -112,6 +112,8 @@ class LoadSpec:
             then uses ``"bench"``).
         probe_at: Where a live step's probe presses (lattice coordinates of the scene).
         probe_radius: Its footprint's radius (one the scene's engine carries).
+        press: What presses there: a "probe", or a "tool" (a sphere of ``probe_radius``) for
+            an engine that takes rigid tools only.
     """
 
     mode: Mode
@@ -128,6 +130,7 @@ class LoadSpec:
     session: str | None = None
     probe_at: tuple[float, ...] = (0.5, 0.5)
     probe_radius: float = STEP_RADIUS
+    press: str = "probe"
 
     def __post_init__(self) -> None:
         _require(self.mode in ("open", "closed"), f"mode must be open or closed, not {self.mode}")
@@ -361,6 +364,7 @@ class _Channel:
         self._session = None if prefix is None else f"{prefix}-{client}"
         self._steps = 0  # live: steps queued so far, the next step's k
         self._probes = [Probe(spec.probe_at, STEP_DEPTH, spec.probe_radius).to_wire()]
+        self._tools = [Tool("sphere", spec.probe_at, STEP_DEPTH, spec.probe_radius).to_wire()]
 
     def request_bytes(self, number: int) -> bytes:
         """Encode request ``number`` of this client (ids are per socket, so ``number`` is fine)."""
@@ -368,7 +372,10 @@ class _Channel:
         if self.live:
             frame = spec.payload == "step-frames"
             step = Request(Op.STEP, number, self._session, spec.scene, k=self._steps, frame=frame)
-            step.probes = self._probes
+            if spec.press == "tool":
+                step.tools = self._tools
+            else:
+                step.probes = self._probes
             return step.to_wire()
         request = Request(spec.payload, number, self._session, spec.scene)
         if spec.payload == "query":

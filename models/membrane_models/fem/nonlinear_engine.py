@@ -93,6 +93,7 @@ class NonlinearPlateState:
     forces: FloatArray
     owner: object = field(default=None, repr=False, compare=False)
     matrix: IterationMatrix | None = field(default=None, repr=False, compare=False)
+    acceleration: FloatArray | None = field(default=None, repr=False, compare=False)
 
 
 class NonlinearPlateEngine:
@@ -158,11 +159,11 @@ class NonlinearPlateEngine:
 
     @property
     def state_bytes(self) -> int:
-        """q and v, the forces of at most every tool's points with their indices, and the
-        iteration matrix (the LU, the points' response and compliance)."""
+        """q, v and the acceleration, the forces of at most every tool's points with their
+        indices, and the iteration matrix (the LU, the points' response and compliance)."""
         r, points = self.plate.size, MAX_TOOLS * MAX_TOOL_POINTS
         matrix = 8 * (r * r + r + r * points + points * points + points)
-        return 2 * 8 * r + 16 * points + matrix + _STATE_OVERHEAD
+        return 3 * 8 * r + 16 * points + matrix + _STATE_OVERHEAD
 
     def describe(self) -> dict[str, object]:
         p = self.plate
@@ -249,7 +250,7 @@ class NonlinearPlateEngine:
         try:
             solved = step_reduced(self.plate, self.coefficients, state.q, state.v,
                                   points.indices, points.surface, start=start,
-                                  matrix=state.matrix)  # fmt: skip
+                                  matrix=state.matrix, acceleration=state.acceleration)  # fmt: skip
         except NotConverged:
             raise InvalidTool(
                 "this step's contact could not be solved: the tools moved too far in one step"
@@ -257,8 +258,10 @@ class NonlinearPlateEngine:
         q, v = solved.q, solved.v
         q.flags.writeable = v.flags.writeable = False
         index = state.step + 1
+        acceleration = (v - state.v) / self._dt
+        acceleration.flags.writeable = False
         new = NonlinearPlateState(index, index * self._dt, q, v, points.indices, solved.forces,
-                                  self._owner, solved.matrix)  # fmt: skip
+                                  self._owner, solved.matrix, acceleration)  # fmt: skip
         readings = _readings(checked, points, solved.forces, solved.displacement)
         return StepResult(new, self.frame(new) if frame else None, (), None, (), readings)
 

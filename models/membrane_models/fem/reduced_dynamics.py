@@ -95,11 +95,13 @@ def step_reduced(
     load: FloatArray | None = None,
     start: NDArray[np.bool_] | None = None,
     matrix: IterationMatrix | None = None,
+    acceleration: FloatArray | None = None,
 ) -> Solved:
     """One step from (q0, v0) with the tools' lattice ``points`` kept at or below ``surface``
     (m), under an optional modal ``load`` held over the step (module docstring); ``start``:
     the points in contact at the last step, where the contact's search begins; ``matrix``:
-    the last step's iteration matrix (``Solved.matrix``), Newton's first.
+    the last step's iteration matrix (``Solved.matrix``), Newton's first; ``acceleration``:
+    the last step's mean acceleration, for Newton's first guess q0 + dt v0 + dt^2 a / 2.
 
     Raises:
         NotConverged: Newton did not converge.
@@ -107,6 +109,9 @@ def step_reduced(
     dt = coefficients.dt
     r = plate.size
     start_pairs = plate.pair_products(q0)
+    guess = q0 + dt * v0
+    if acceleration is not None:
+        guess += (0.5 * dt * dt) * acceleration
     linear_rhs = (2.0 / dt**2) * (q0 + dt * v0) + (coefficients.damping / dt) * q0
     linear_rhs -= 0.5 * plate.omega**2 * q0
     if load is not None:
@@ -125,7 +130,7 @@ def step_reduced(
         return np.asarray(tangent)
 
     q, forces, displacement, iterations, used = _newton(
-        plate, residual, jacobian, q0 + dt * v0, points, surface, active=start, matrix=matrix
+        plate, residual, jacobian, guess, points, surface, active=start, matrix=matrix
     )
     v = 2.0 * (q - q0) / dt - v0
     return Solved(q, v, forces, displacement, iterations, used)
@@ -219,27 +224,26 @@ def _newton(
     exact, so the answer is Newton's; only the rate of convergence depends on the matrix."""
     shapes = plate.shapes[points]  # (p, r)
     forces = np.zeros(points.size)
-    scale = 1e-300
+    scale = max(float(np.abs(q).max()), 1e-300)
+    chosen = None if active is None else np.flatnonzero(active)
     current = None if matrix is None else matrix.at(plate, points)
-    contact = None if current is None else _Contact(current.compliance)
+    contact = None if current is None else _Contact(current.compliance, chosen)
     for iteration in range(1, MAX_ITERATIONS + 1):
         if current is None or contact is None or (iteration > 1 and (iteration - 1) % refresh == 0):
             current = IterationMatrix.of(plate, jacobian(q), points)
-            contact = _Contact(current.compliance)
+            contact = _Contact(current.compliance, chosen if contact is None else contact.chosen)
         shift = _solve((current.lu, current.pivots), residual(q))
         if points.size:
             free = shapes @ (q - shift)
-            forces = contact.forces(free - surface, active)
-            active = forces > 0.0
+            forces = contact.forces(free - surface)
             step = shift + current.response @ forces
         else:
             step = shift
         q = q - step
-        scale = max(scale, float(np.abs(q).max()))
         change = float(np.abs(step).max())
         if not math.isfinite(change):
             break
-        if change <= _TOLERANCE * scale:
+        if change <= _TOLERANCE * scale or change <= _TOLERANCE * float(np.abs(q).max()):
             flexibility = current.compliance - shapes @ current.response
             displacement = shapes @ q - flexibility @ forces
             return q, forces, displacement, iteration, current
@@ -261,22 +265,22 @@ def _solve(factor: tuple[FloatArray, NDArray[np.int32]], rhs: FloatArray) -> Flo
 
 
 class _Contact:
-    """The points' forces for one iteration matrix: the last iterate's active set checked
-    first (usually still right), its block's LU kept while the set stays; else
-    ``solve_points`` from it."""
+    """The points' forces for one iteration matrix: the last solve's active set tried first
+    (usually still right), its block's LU kept while the set stays; else ``solve_points``
+    from it."""
 
-    def __init__(self, compliance: FloatArray) -> None:
+    def __init__(self, compliance: FloatArray, chosen: IntArray | None) -> None:
         self.compliance = compliance
-        self._chosen = np.zeros(0, dtype=np.intp)
+        self.chosen = chosen  # the active set to try first (None: the violated points)
         self._factor: tuple[FloatArray, NDArray[np.int32]] | None = None
 
-    def forces(self, violation: FloatArray, active: NDArray[np.bool_] | None) -> FloatArray:
+    def forces(self, violation: FloatArray) -> FloatArray:
         c = self.compliance
-        chosen = np.flatnonzero(violation > 0.0 if active is None else active)
+        chosen = np.flatnonzero(violation > 0.0) if self.chosen is None else self.chosen
         if chosen.size:
-            if self._factor is None or not np.array_equal(chosen, self._chosen):
+            if self._factor is None:
                 lu, pivots, info = _GETRF(c[chosen][:, chosen])
-                self._chosen, self._factor = chosen, (lu, pivots) if info == 0 else None
+                self._factor = (lu, pivots) if info == 0 else None
             if self._factor is not None:
                 forces = np.zeros(violation.size)
                 forces[chosen] = _GETRS(*self._factor, violation[chosen])[0]
@@ -284,8 +288,15 @@ class _Contact:
                 gap[chosen] = 0.0
                 tolerance = _CONTACT_TOLERANCE * float(np.abs(violation).max())
                 if forces.min() >= 0.0 and gap.min() >= -tolerance:
+                    self.chosen = chosen
                     return forces
-        return solve_points(c, violation, active)
+        start = None
+        if self.chosen is not None:
+            start = np.zeros(violation.size, dtype=bool)
+            start[self.chosen] = True
+        forces = solve_points(c, violation, start)
+        self.chosen, self._factor = np.flatnonzero(forces > 0.0), None
+        return forces
 
 
 _GETRF, _GETRS = scipy.linalg.lapack.get_lapack_funcs(("getrf", "getrs"), dtype=np.float64)
