@@ -162,8 +162,15 @@ class KirchhoffEngine(ModalEngine):
         miss = self._miss(theta, tension, s0, found[0])
         if abs(miss) <= _TOLERANCE * tension:
             return found
+        # then the tension of the free step under the force that step's contact added (held),
+        # and from there the secant on whole steps (a grasp's force follows the tension
+        # closely, so holding it alone converges slowly)
+        c = self._constants[theta]
+        gain = c.from_force / (c.d0 + tension * c.d1)  # dq1 / dp of each kept mode
+        free = self._free_modes(theta, q0, v0, state.load_force, tension)
+        contact = (found[0] - free) / np.where(self._kept > 0.0, gain, 1.0)
         previous, previous_miss = tension, miss
-        tension = tension + miss
+        tension = self._free_tension(theta, q0, v0, s0, state.load_force + contact, tension)
         for _ in range(_MAX_EVALUATIONS):
             if not (math.isfinite(tension) and tension > 0.0):
                 break
@@ -207,6 +214,14 @@ class KirchhoffEngine(ModalEngine):
             if abs(change) <= _TOLERANCE * tension:
                 return tension
         return tension  # the whole step's check decides
+
+    def _free_modes(
+        self, theta: float, q0: FloatArray, v0: FloatArray, force: FloatArray, tension: float
+    ) -> FloatArray:
+        """q1 of the free theta step under ``tension`` and a held modal ``force``."""
+        c = self._constants[theta]
+        n0 = c.from_q * q0 + c.from_v * v0 + c.from_force * force
+        return np.asarray((n0 - tension * c.n1 * q0) / (c.d0 + tension * c.d1))
 
     def _miss(self, theta: float, tension: float, s0: float, q1: FloatArray) -> float:
         """c^2 + k ((1 - theta) S0 + theta S1) - T: zero at the step's tension."""
