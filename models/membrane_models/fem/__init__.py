@@ -13,7 +13,13 @@ Physics as small weak forms assembled with scikit-fem, one job per module:
   ``sampling``: ``sample`` a field at points; ``stress``: von Mises at a point;
 - ``von_karman``: the large-deflection plate's energy, residual and tangent; ``nonlinear``:
   ``solve_nonlinear``, its static state by Newton with load stepping, in-plane supports per
-  part; ``nonlinear_transient``: ``step_nonlinear``, Newmark with Newton at every step.
+  part; ``nonlinear_transient``: ``step_nonlinear``, Newmark with Newton at every step;
+  ``nonlinear_press``: rigid tools pressed into it on every DOF (the reduced engine's
+  reference);
+- ``reduced_plate``: the von Karman plate reduced to a few modes, the in-plane field condensed
+  (its stretching energy a quartic, its force cubic); ``reduced_dynamics``: its
+  energy-consistent step and static press with rigid tools; ``reduced_cache``: reduced plates
+  kept beside the tables; ``nonlinear_engine``: the ``fem-nonlinear`` engine kind.
 
 Bad input raises a ``FemError`` (a ``membrane_errors.UserError``). Nothing here imports torch.
 """

@@ -46,6 +46,7 @@ def test_its_force_is_its_energys_gradient_and_its_quartic_is_symmetric() -> Non
     assert np.abs(np.array(numeric) - force).max() <= 1e-7 * np.abs(force).max()
 
 
+@pytest.mark.slow
 def test_it_presses_as_the_full_plate_does_within_the_measured_error() -> None:
     # a centre point force: the linear limit exactly, then the stretch within the reduction's
     # error (12 modes and the residual: +0.07 % at 0.25 N, +0.67 % at 1 N; measured)
@@ -81,6 +82,7 @@ def test_a_punch_pressed_to_twice_the_thickness_takes_the_full_plates_force() ->
     assert full[-1].force > 2 * linear  # the stretch: the linear plate is far off at 2 h
 
 
+@pytest.mark.slow
 def test_without_damping_or_contact_the_step_keeps_the_energy() -> None:
     # the discrete gradient: the quartic energy kept to Newton's tolerance over 10^4 steps of
     # a large vibration (about 0.9 h at the centre), where Newmark keeps it within 3e-3

@@ -77,6 +77,7 @@ def test_probes_tools_and_grasps_hold_under_the_steps_tension() -> None:
     assert probed.probes[0].gap == 0.0
 
 
+@pytest.mark.slow
 def test_a_slow_press_feels_the_tension_its_stretch_adds() -> None:
     # a point probe held 0.05 below the middle until the string settles (damping 0.3): the
     # static string is the triangle of stretch S = 4 d^2, tension c^2 + k S = 2 and force
