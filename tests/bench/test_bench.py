@@ -423,3 +423,25 @@ def test_progress_bar_shows_on_a_terminal_only(rope_server_address: str) -> None
     assert "\r" in _bench_stderr(rope_server_address, on_terminal=True)  # the bar, redrawn in place
     piped = _bench_stderr(rope_server_address, on_terminal=False)
     assert "\r" not in piped and "replies" not in piped, piped
+
+
+@pytest.mark.slow
+def test_a_live_step_presses_a_tool_where_the_engine_takes_tools_only(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from membrane_bench.bench import probe
+    from membrane_server.served import ServedScene
+    from membrane_server.server import Server
+
+    monkeypatch.setenv("MEMBRANE_CACHE_DIR", str(tmp_path / "cache"))
+    scene = ServedScene.load("skin-patch-nonlinear")  # the fem-nonlinear engine: tools only
+    with Server([scene], bind="tcp://127.0.0.1:*") as server:
+        target = probe(server.address, payload="step")
+        assert target.press == "tool"
+        assert target.probe_at == pytest.approx((0.025, 0.025))  # the middle, in m
+        assert target.probe_radius == pytest.approx(0.005)  # a tenth of the patch
+        argv = ["bench", "--connect", server.address, "--payload", "step", "--rate", "100"]
+        code = main([*argv, "--duration", "0.5", "--warmup", "0.1", "--json", "--quiet"])
+    data = json.loads(capsys.readouterr().out)
+    assert data["server"]["errors"] == {} and data["server"]["ok"] == data["server"]["sent"] > 0
+    assert code in (0, 1)  # 1 only when a request could not be sent in time
