@@ -6,7 +6,6 @@ tests are marked slow."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -16,15 +15,6 @@ from membrane_client import Client, Grasp, Probe, Tool
 from membrane_client.errors import ServerError
 from membrane_server.served import ServedScene
 from membrane_server.server import Server
-
-
-@pytest.fixture(scope="module")
-def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    """The FEM caches in a temporary directory (never the user's)."""
-    with pytest.MonkeyPatch.context() as patch:
-        path = tmp_path_factory.mktemp("fem-cache")
-        patch.setenv("MEMBRANE_CACHE_DIR", str(path))
-        yield path
 
 
 def _serving(*names: str) -> Server:

@@ -8,7 +8,6 @@ cores), so the tests here are marked slow; the table's refusals need no build an
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -24,15 +23,6 @@ from membrane_server.server import Server
 
 SIDE = 0.05
 RIGIDITY = 1.5e6 * 0.003**3 / (12 * (1 - 0.45**2))  # N m
-
-
-@pytest.fixture(scope="module")
-def cache_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
-    """The FEM tables' cache in a temporary directory (never the user's)."""
-    with pytest.MonkeyPatch.context() as patch:
-        path = tmp_path_factory.mktemp("fem-cache")
-        patch.setenv("MEMBRANE_CACHE_DIR", str(path))
-        yield path
 
 
 @pytest.fixture(scope="module")

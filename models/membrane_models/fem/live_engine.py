@@ -21,6 +21,7 @@ from membrane_models.fem.live_basis import fem_basis
 from membrane_models.fem.tissue import Tissue
 from membrane_models.live.errors import InvalidEngineSettings
 from membrane_models.live.interface import Hold
+from membrane_models.live.options import refuse_unknown
 from membrane_models.live.stepper import ModalStepper
 
 __all__ = ["FEM_OPTIONS", "build_fem_engine"]
@@ -76,10 +77,7 @@ def build_fem_engine(
         raise InvalidEngineSettings(
             "the fem engine steps a physical tissue: give the scene a [tissue] table"
         )
-    unknown = sorted(set(options) - set(FEM_OPTIONS))
-    if unknown:
-        known = ", ".join(FEM_OPTIONS)
-        raise InvalidEngineSettings(f"unknown [live] option {unknown[0]!r:.40}; known: {known}")
+    refuse_unknown(options, FEM_OPTIONS)
     hold = options.get("hold", "zoh")
     if hold not in ("zoh", "foh"):
         raise InvalidEngineSettings('[live] hold must be "zoh" or "foh"')

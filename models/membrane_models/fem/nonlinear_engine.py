@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -47,6 +46,7 @@ from membrane_models.live.interface import (
     Tool,
     ToolReading,
 )
+from membrane_models.live.options import modes_option, refuse_unknown
 from membrane_models.live.projection import checked_shape
 from membrane_models.live.stepper import positive
 from membrane_models.live.tools import ToolPoints, tool_points, tool_readings
@@ -346,13 +346,9 @@ def build_nonlinear_engine(
         raise InvalidEngineSettings(
             "the fem-nonlinear engine steps a physical tissue: give the scene a [tissue] table"
         )
-    unknown = sorted(set(options) - set(NONLINEAR_OPTIONS))
-    if unknown:
-        known = ", ".join(NONLINEAR_OPTIONS)
-        raise InvalidEngineSettings(f"unknown [live] option {unknown[0]!r:.40}; known: {known}")
-    modes: Any = options.get("modes", DEFAULT_MODES)
-    if isinstance(modes, bool) or not isinstance(modes, int) or not 1 <= modes <= _MAX_MODES:
-        raise InvalidEngineSettings(f"[live] modes must be an integer in [1, {_MAX_MODES}]")
+    refuse_unknown(options, NONLINEAR_OPTIONS)
+    modes = modes_option(options, _MAX_MODES, DEFAULT_MODES)
+    assert modes is not None
     inplane = options.get("inplane", "held")
     if inplane not in INPLANE:
         raise InvalidEngineSettings(f"[live] inplane must be one of {', '.join(INPLANE)}")

@@ -8,11 +8,11 @@ new kind brings its settings without a change to the scene schema.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 
 from membrane_models.live.engine import ModalEngine
 from membrane_models.live.errors import InvalidEngineSettings
+from membrane_models.live.options import damping_option, modes_option, refuse_unknown
 from membrane_models.problems import Problem
 
 __all__ = ["MODAL_OPTIONS", "build_modal_engine"]
@@ -38,21 +38,10 @@ def build_modal_engine(
         raise InvalidEngineSettings(
             "the modal engine steps a dimensionless problem; a [tissue] scene's engine is fem"
         )
-    unknown = sorted(set(options) - set(MODAL_OPTIONS))
-    if unknown:
-        known = ", ".join(MODAL_OPTIONS)
-        raise InvalidEngineSettings(f"unknown [live] option {unknown[0]!r:.40}; known: {known}")
-    damping = options.get("damping", 0.0)
-    if isinstance(damping, bool) or not isinstance(damping, int | float):
-        raise InvalidEngineSettings("[live] damping must be a number")
-    if not (math.isfinite(damping) and 0.0 <= damping < 1.0):
-        raise InvalidEngineSettings(f"[live] damping must be in [0, 1), got {damping:.6g}")
+    refuse_unknown(options, MODAL_OPTIONS)
+    damping = damping_option(options)
     hold = options.get("hold", "zoh")
     if hold not in ("zoh", "foh"):
         raise InvalidEngineSettings('[live] hold must be "zoh" or "foh"')
-    modes = options.get("modes")
-    if modes is not None and (
-        isinstance(modes, bool) or not isinstance(modes, int) or not 1 <= modes <= _MAX_MODES
-    ):
-        raise InvalidEngineSettings(f"[live] modes must be an integer from 1 to {_MAX_MODES}")
-    return ModalEngine(problem, lattice, dt, damping=float(damping), hold=hold, modes=modes)
+    modes = modes_option(options, _MAX_MODES, None)
+    return ModalEngine(problem, lattice, dt, damping=damping, hold=hold, modes=modes)

@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from membrane_models.live.engine import ModalEngine
 from membrane_models.live.errors import InvalidEngineSettings, InvalidLoad
+from membrane_models.live.options import damping_option, modes_option, refuse_unknown
 from membrane_models.live.stepper import Advanced, ModalState
 from membrane_models.live.transition import Transition
 from membrane_models.problems import Problem, StringKirchhoff
@@ -264,20 +265,9 @@ def build_kirchhoff_engine(
         raise InvalidEngineSettings(
             'the kirchhoff engine steps the string-kirchhoff problem (model = "string-kirchhoff")'
         )
-    unknown = sorted(set(options) - set(KIRCHHOFF_OPTIONS))
-    if unknown:
-        known = ", ".join(KIRCHHOFF_OPTIONS)
-        raise InvalidEngineSettings(f"unknown [live] option {unknown[0]!r:.40}; known: {known}")
-    damping = options.get("damping", 0.0)
-    if isinstance(damping, bool) or not isinstance(damping, int | float):
-        raise InvalidEngineSettings("[live] damping must be a number")
-    if not (math.isfinite(damping) and 0.0 <= damping < 1.0):
-        raise InvalidEngineSettings(f"[live] damping must be in [0, 1), got {damping:.6g}")
-    modes = options.get("modes")
-    if modes is not None and (
-        isinstance(modes, bool) or not isinstance(modes, int) or not 1 <= modes <= _MAX_MODES
-    ):
-        raise InvalidEngineSettings(f"[live] modes must be an integer from 1 to {_MAX_MODES}")
+    refuse_unknown(options, KIRCHHOFF_OPTIONS)
+    damping = damping_option(options)
+    modes = modes_option(options, _MAX_MODES, None)
     if len(lattice) != 1:
         raise InvalidEngineSettings("a string's lattice has one axis")
-    return KirchhoffEngine(problem, int(lattice[0]), dt, damping=float(damping), modes=modes)
+    return KirchhoffEngine(problem, int(lattice[0]), dt, damping=damping, modes=modes)
