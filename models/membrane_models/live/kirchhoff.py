@@ -86,6 +86,14 @@ class _Constants:
             d1=theta * theta * dt * dt * kappa2,
         )
 
+    def numerator(self, q0: FloatArray, v0: FloatArray, force: FloatArray) -> FloatArray:
+        """N0 of the step from (q0, v0) under a held modal ``force``."""
+        return np.asarray(self.from_q * q0 + self.from_v * v0 + self.from_force * force)
+
+    def denominator(self, tension: float) -> FloatArray:
+        """D0 + T D1."""
+        return np.asarray(self.d0 + tension * self.d1)
+
 
 class KirchhoffEngine(ModalEngine):
     """The nonlinear string as a live engine (module docstring).
@@ -154,10 +162,10 @@ class KirchhoffEngine(ModalEngine):
         theta = 1.0 if constrained else 0.5
         q0, v0 = state.q, state.v
         s0 = self.stretch(q0)
-        # the loads' modal force the last step ended with (its contact's, a grasp's above all,
-        # follows the tension too closely to be a better guess: measured, it costs a step)
         rate = float(np.vdot(self._wavenumber2, q0 * v0))  # dS/dt
         guess = self.c2 + self.k * (s0 + theta * self.dt * rate)
+        # held: the loads' modal force the last step ended with (its contact's, a grasp's above
+        # all, follows the tension too closely to be a better guess: measured, it costs a step)
         tension = self._free_tension(theta, q0, v0, s0, state.load_force, guess)
         found = advance(self._transition(theta, tension))
         miss = self._miss(theta, tension, s0, found[0])
@@ -167,8 +175,9 @@ class KirchhoffEngine(ModalEngine):
         # and from there the secant on whole steps (a grasp's force follows the tension
         # closely, so holding it alone converges slowly)
         c = self._constants[theta]
-        gain = c.from_force / (c.d0 + tension * c.d1)  # dq1 / dp of each kept mode
-        free = self._free_modes(theta, q0, v0, state.load_force, tension)
+        gain = c.from_force / c.denominator(tension)  # dq1 / dp of each kept mode
+        free = c.numerator(q0, v0, state.load_force) - tension * c.n1 * q0
+        free /= c.denominator(tension)
         contact = (found[0] - free) / np.where(self._kept > 0.0, gain, 1.0)
         previous, previous_miss = tension, miss
         tension = self._free_tension(theta, q0, v0, s0, state.load_force + contact, tension)
@@ -199,14 +208,12 @@ class KirchhoffEngine(ModalEngine):
         Newton on q1(T) = (N0 - T N1) / (D0 + T D1) per mode (``_transition``'s step)."""
         c = self._constants[theta]
         kappa2 = self._wavenumber2
-        n0 = c.from_q * q0 + c.from_v * v0 + c.from_force * force
-        n1 = c.n1 * q0
-        d0, d1 = c.d0, c.d1
+        n0, n1 = c.numerator(q0, v0, force), c.n1 * q0
         tension = guess
         for _ in range(_MAX_EVALUATIONS):
-            denominator = d0 + tension * d1
+            denominator = c.denominator(tension)
             q1 = (n0 - tension * n1) / denominator
-            dq = -(n1 + q1 * d1) / denominator
+            dq = -(n1 + q1 * c.d1) / denominator
             s1 = 0.5 * float(np.vdot(kappa2, q1 * q1))
             miss = self.c2 + self.k * ((1.0 - theta) * s0 + theta * s1) - tension
             slope = theta * self.k * float(np.vdot(kappa2, q1 * dq)) - 1.0
@@ -216,14 +223,6 @@ class KirchhoffEngine(ModalEngine):
                 return tension
         return tension  # the whole step's check decides
 
-    def _free_modes(
-        self, theta: float, q0: FloatArray, v0: FloatArray, force: FloatArray, tension: float
-    ) -> FloatArray:
-        """q1 of the free theta step under ``tension`` and a held modal ``force``."""
-        c = self._constants[theta]
-        n0 = c.from_q * q0 + c.from_v * v0 + c.from_force * force
-        return np.asarray((n0 - tension * c.n1 * q0) / (c.d0 + tension * c.d1))
-
     def _miss(self, theta: float, tension: float, s0: float, q1: FloatArray) -> float:
         """c^2 + k ((1 - theta) S0 + theta S1) - T: zero at the step's tension."""
         return self.c2 + self.k * ((1.0 - theta) * s0 + theta * self.stretch(q1)) - tension
@@ -231,12 +230,10 @@ class KirchhoffEngine(ModalEngine):
     def _transition(self, theta: float, tension: float) -> Transition:
         """The theta step of every kept mode under ``tension`` (module docstring): 1/2 the
         trapezoid, 1 backward Euler."""
-        dt, friction = self.dt, self._friction
-        stiffness = tension * self._wavenumber2
-        gain = self._kept / (1.0 + theta * dt * friction + theta * theta * dt * dt * stiffness)
-        vq = -dt * stiffness * gain
-        vv = 1.0 - dt * friction * (1.0 - theta) - theta * (1.0 - theta) * dt * dt * stiffness
-        vv = vv * gain
+        dt, c = self.dt, self._constants[theta]
+        gain = self._kept / c.denominator(tension)
+        vq = -dt * tension * self._wavenumber2 * gain
+        vv = (1.0 - dt * self._friction * (1.0 - theta) - tension * c.n1) * gain
         zoh_v = dt * gain
         zeros = self._zeros
         return Transition(
