@@ -44,7 +44,6 @@ from membrane_models.live.interface import (
     Start,
     StepResult,
     Tool,
-    ToolReading,
 )
 from membrane_models.live.options import modes_option, refuse_unknown
 from membrane_models.live.projection import checked_shape
@@ -262,7 +261,7 @@ class NonlinearPlateEngine:
         acceleration.flags.writeable = False
         new = NonlinearPlateState(index, index * self._dt, q, v, points.indices, solved.forces,
                                   self._owner, solved.matrix, acceleration)  # fmt: skip
-        readings = _readings(checked, points, solved.forces, solved.displacement)
+        readings = tool_readings(checked, points, solved.forces, solved.displacement)
         return StepResult(new, self.frame(new) if frame else None, (), None, (), readings)
 
     def frame(self, state: NonlinearPlateState) -> FloatArray:
@@ -313,25 +312,6 @@ class NonlinearPlateEngine:
     def _check(self, state: NonlinearPlateState) -> None:
         if not isinstance(state, NonlinearPlateState) or state.owner is not self._owner:
             raise InvalidState("this state was not made by this engine (use its start())")
-
-
-def _readings(
-    tools: Sequence[Tool], points: ToolPoints, forces: FloatArray, displacement: FloatArray
-) -> tuple[ToolReading, ...]:
-    """``live.tools.tool_readings``, with one tool's in fewer array operations (a haptic
-    loop's press: they are a tenth of its step)."""
-    if len(tools) != 1 or not points.count:
-        return tool_readings(tools, points, forces, displacement)
-    tool = tools[0]
-    total = float(forces.sum())
-    clearance = points.surface - displacement
-    lowest = float(clearance.min())
-    contacts = int(np.count_nonzero(forces))
-    centre = tool.at
-    if total > 0.0:
-        centre = tuple((forces @ points.coordinates / total).tolist())
-    gap = 0.0 if contacts else max(lowest, 0.0)
-    return (ToolReading(total, centre, contacts, points.count, gap, max(-lowest, 0.0)),)
 
 
 def build_nonlinear_engine(

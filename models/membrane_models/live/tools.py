@@ -104,21 +104,25 @@ def tool_readings(
 ) -> tuple[ToolReading, ...]:
     """Each tool's reading from its points' contact ``forces`` and end-of-step
     ``displacement``s."""
+    if len(tools) == 1:  # every point is the tool's: no masks (a haptic press's every step)
+        return (_reading(tools[0], forces, points.coordinates, points.surface - displacement),)
     readings = []
     for index, tool in enumerate(tools):
         mine = points.owner == index
-        if not mine.any():
-            readings.append(ToolReading(0.0, tool.at, 0, 0, _NAN, _NAN))
-            continue
-        force = forces[mine]
-        total = float(force.sum())
-        if total > 0.0:
-            centre = tuple(float(x) for x in force @ points.coordinates[mine] / total)
-        else:
-            centre = tool.at
         clearance = points.surface[mine] - displacement[mine]
-        contacts = int((force > 0.0).sum())
-        gap = 0.0 if contacts else max(float(clearance.min()), 0.0)
-        penetration = max(float(-clearance.min()), 0.0)
-        readings.append(ToolReading(total, centre, contacts, int(mine.sum()), gap, penetration))
+        readings.append(_reading(tool, forces[mine], points.coordinates[mine], clearance))
     return tuple(readings)
+
+
+def _reading(
+    tool: Tool, force: FloatArray, coordinates: FloatArray, clearance: FloatArray
+) -> ToolReading:
+    """One tool's reading from its points' forces, centres and clearances."""
+    if not force.size:
+        return ToolReading(0.0, tool.at, 0, 0, _NAN, _NAN)
+    total = float(force.sum())
+    centre = tuple(float(x) for x in force @ coordinates / total) if total > 0.0 else tool.at
+    lowest = float(clearance.min())
+    contacts = int(np.count_nonzero(force > 0.0))
+    gap = 0.0 if contacts else max(lowest, 0.0)
+    return ToolReading(total, centre, contacts, int(force.size), gap, max(-lowest, 0.0))
