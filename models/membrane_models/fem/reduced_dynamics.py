@@ -243,7 +243,7 @@ def _newton(
         change = float(np.abs(step).max())
         if not math.isfinite(change):
             break
-        if change <= _TOLERANCE * scale or change <= _TOLERANCE * float(np.abs(q).max()):
+        if change <= _TOLERANCE * max(scale, float(np.abs(q).max())):
             flexibility = current.compliance - shapes @ current.response
             displacement = shapes @ q - flexibility @ forces
             return q, forces, displacement, iteration, current

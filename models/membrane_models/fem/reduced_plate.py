@@ -35,11 +35,12 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 from numpy.typing import NDArray
-from scipy.sparse.linalg import splu
+from scipy.sparse.linalg import SuperLU, splu
 from skfem.helpers import grad, sym_grad
 
 from membrane_models.fem.assembly import System
 from membrane_models.fem.errors import InvalidModel, InvalidSolve
+from membrane_models.fem.modal import Modes
 from membrane_models.fem.modal import modes as lowest_modes
 from membrane_models.fem.models import Plate
 from membrane_models.fem.nonlinear import Equilibrium
@@ -159,8 +160,7 @@ def reduce_plate(
         raise InvalidSolve(f"the lattice needs 2 axes of >= 3 points, got {tuple(lattice)}")
     found = lowest_modes(system, count)
     factor = splu(sp.csc_matrix(system.reduced_stiffness))
-    basis = _ritz(system, found.shapes, factor, static_points)
-    omega, vectors = basis
+    omega, vectors = _ritz(system, found, factor, static_points)
     quartic = _quartic(system, vectors, inplane)
     points = system.domain.mesh.p
     lower = (float(points[0].min()), float(points[1].min()))
@@ -186,24 +186,22 @@ def reduce_plate(
 
 def _ritz(
     system: System,
-    modes: FloatArray,
-    factor: object,
+    modes: Modes,
+    factor: SuperLU,
     static_points: Sequence[tuple[float, float]],
 ) -> tuple[FloatArray, FloatArray]:
     """The modes and the static vectors, Ritz-diagonalised: (omega, V on every DOF)."""
     if not static_points:
-        k = system.stiffness
-        omega = np.sqrt(np.einsum("ik,ik->k", modes, k @ modes))
-        return np.asarray(omega), modes
+        return modes.omega, modes.shapes
     loads = np.stack([system.reduce(point_load(system, 1.0, p)) for p in static_points], axis=1)
-    statics = system.expand(factor.solve(loads))  # type: ignore[attr-defined]
-    candidates = np.concatenate([modes, statics], axis=1)
+    statics = system.expand(factor.solve(loads))
+    candidates = np.concatenate([modes.shapes, statics], axis=1)
     m, k = system.mass, system.stiffness
     mass = candidates.T @ (m @ candidates)
     stiffness = candidates.T @ (k @ candidates)
-    # drop what the others already span: a static response the modes nearly carry
+    # refuse a static response the others nearly span: its Ritz problem would be singular
     scale = np.sqrt(np.diag(mass))
-    values, vectors = np.linalg.eigh(mass / np.outer(scale, scale))
+    values = np.linalg.eigvalsh(mass / np.outer(scale, scale))
     if values.min() < 1e-10 * values.max():
         raise InvalidSolve("the static points' responses are (nearly) spanned by the modes")
     eigenvalues, ritz = scipy.linalg.eigh(stiffness, mass)
