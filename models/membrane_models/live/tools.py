@@ -121,7 +121,7 @@ def _reading(
     if not force.size:
         return ToolReading(0.0, tool.at, 0, 0, _NAN, _NAN)
     total = float(force.sum())
-    centre = tuple(float(x) for x in force @ coordinates / total) if total > 0.0 else tool.at
+    centre = tuple((force @ coordinates / total).tolist()) if total > 0.0 else tool.at
     lowest = float(clearance.min())
     contacts = int(np.count_nonzero(force > 0.0))
     gap = 0.0 if contacts else max(lowest, 0.0)
