@@ -57,6 +57,9 @@ class SceneInfo:
     # Whether ``query`` serves a film (frames over the time grid); a physical live scene has
     # none: its query answers the rest shape, and only a live session moves it.
     film: bool = True
+    # A physical 2-D scene's lattice as a surface: (m, 3) indices into ``points`` of triangles
+    # that cover the tissue only (a viewer draws frames on them); None where describe gives none.
+    triangles: np.ndarray | None = None
     _outside_warning: OnceGate = field(default_factory=OnceGate, init=False, repr=False)
 
     @property
@@ -155,6 +158,7 @@ class SceneInfo:
                 else {}
             ),
             **({} if self.film else {"film": False}),
+            **({} if self.triangles is None else {"triangles": _flat(self.triangles)}),
         }
         return {**fields, "revision": self.revision} if self.revision else fields
 
@@ -191,6 +195,7 @@ class SceneInfo:
                 revision=str(reply.get("revision", "")),
                 declared_extent=extent,
                 film=_film_from_reply(reply),
+                triangles=_triangles_from_reply(reply, points.shape[0]),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ProtocolError(f"malformed describe reply: {exc!r}") from None
@@ -218,6 +223,25 @@ def _extent_from_reply(reply: dict[str, Any], points: np.ndarray) -> Extent | No
     if points.ndim != 2:
         raise ValueError(f"points must be (n, d), got {points.shape}")
     return Extent.from_wire(reply["extent"], int(points.shape[1]))
+
+
+def _flat(triangles: np.ndarray) -> list[int]:
+    return [int(v) for v in np.asarray(triangles).reshape(-1)]
+
+
+def _triangles_from_reply(reply: dict[str, Any], n_points: int) -> np.ndarray | None:
+    """The optional ``triangles`` (additive in v1): a flat list of point indices, three per
+    triangle, each below the number of points."""
+    flat = reply.get("triangles")
+    if flat is None:
+        return None
+    if type(flat) is not list or len(flat) % 3 or not all(type(v) is int for v in flat):
+        raise ValueError("triangles must be a flat list of ints, three per triangle")
+    triangles = np.asarray(flat, dtype=np.int32).reshape(-1, 3)
+    if triangles.size and (triangles.min() < 0 or triangles.max() >= n_points):
+        raise ValueError(f"triangles must index the {n_points} points")
+    triangles.setflags(write=False)
+    return triangles
 
 
 def _film_from_reply(reply: dict[str, Any]) -> bool:

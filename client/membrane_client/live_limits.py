@@ -64,6 +64,8 @@ class LiveLimits:
     max_radius: float = DEFAULT_MAX_RADIUS
     max_depth: float = DEFAULT_MAX_DEPTH
     max_force: float = DEFAULT_MAX_FORCE
+    # A plate's tables may carry point forces (``radii`` holds 0): a point is finite there.
+    point_forces: bool = False
 
     @classmethod
     def from_live(cls, live: Mapping[str, Any], dims: int) -> LiveLimits:
@@ -80,6 +82,7 @@ class LiveLimits:
             max_radius=_bound(live.get("max_radius"), defaults.max_radius),
             max_depth=_bound(live.get("max_depth"), defaults.max_depth),
             max_force=_bound(live.get("max_force"), defaults.max_force),
+            point_forces=_has_zero(live.get("radii")),
         )
 
     def check_probe(
@@ -143,8 +146,12 @@ class LiveLimits:
                 f"{what} radius must be in [{self.min_radius:.6g}, {self.max_radius:.6g}], "
                 f"got {value:.6g}"
             )
-        if value == 0.0 and self.dims == 2:
+        if value == 0.0 and self.dims == 2 and not self.point_forces:
             raise InvalidInput(f"{what} radius must be > 0 on a membrane (a point is singular)")
+
+
+def _has_zero(radii: Any) -> bool:
+    return type(radii) is list and any(type(r) in (int, float) and r == 0 for r in radii)
 
 
 def _count(value: Any, default: int) -> int:

@@ -184,12 +184,19 @@ class ServedScene:
             # Said only where they say something: a film scene's describe stays protocol v1's.
             declared_extent=None if scene.film else self._extent(),
             film=scene.film,
+            triangles=self._triangles(),
         ).to_reply_fields()
         return fields
 
     def _extent(self) -> Extent:
         lower, upper = zip(*self.source.spatial_bounds, strict=True)
         return Extent.of_bounds(np.array(lower), np.array(upper))
+
+    def _triangles(self) -> np.ndarray | None:
+        """A physical 2-D scene's lattice triangles on its tissue (``lattice_surface``)."""
+        if not isinstance(self.source, TissueSource):
+            return None
+        return self.source.lattice_triangles(self.evaluator.points, tuple(self.shape))
 
     def _step_units(self) -> dict[str, str] | None:
         return None if self.scene.tissue is None else SI_STEP_UNITS

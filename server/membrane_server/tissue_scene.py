@@ -4,7 +4,8 @@ A scene with a ``[tissue]`` table serves live sessions on the FEM engine in SI u
 no film: ``query`` answers the rest shape (zeros) at any time, so protocol v1 clients keep
 working, and ``describe`` says ``film: false`` with a one-step time grid (``duration`` = dt).
 The lattice is the scene's grid over the tissue's bounding box, in m; points outside the
-shape stay at rest.
+shape stay at rest, and ``describe``'s ``triangles`` (the lattice's, on the tissue only) let a
+viewer draw the shape without them.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from membrane_models.fem import FemError
+from membrane_models.fem.lattice_surface import lattice_triangles
 from membrane_models.fem.tissue import Tissue
 from membrane_server.evaluators import Evaluator
 from membrane_server.scene import Scene
@@ -51,6 +53,10 @@ class TissueSource:
 
     def summary(self) -> dict[str, Any]:
         return self.tissue.describe()
+
+    def lattice_triangles(self, points: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+        """The lattice's triangles over the tissue (``describe``'s ``triangles``)."""
+        return lattice_triangles(points, shape, self.tissue.domain)
 
 
 class RestEvaluator(Evaluator):

@@ -123,3 +123,14 @@ def test_loads_and_counts() -> None:
 def test_only_strings_and_membranes() -> None:
     with pytest.raises(InvalidInput, match="1 or 2 dimensions"):
         LiveLimits.from_live(LIVE, dims=3)
+
+
+def test_a_point_probe_is_taken_where_the_plates_tables_carry_point_forces() -> None:
+    """skin-patch's live map says radii [0.0]: its tables carry point forces, finite on a
+    plate. Without that, a point on a 2-D scene stays refused (singular on a membrane)."""
+    plate = LiveLimits.from_live({**LIVE, "min_radius": 0.0, "radii": [0.0]}, dims=2)
+    assert plate.point_forces and plate.check_probe([0.02, 0.02], 0.001, 0.0).radius == 0.0
+    for live in ({**LIVE, "min_radius": 0.0}, {**LIVE, "min_radius": 0.0, "radii": [0.002]}):
+        membrane = LiveLimits.from_live(live, dims=2)
+        with pytest.raises(InvalidInput, match="a point is singular"):
+            membrane.check_probe([0.5, 0.5], 0.01, 0.0)

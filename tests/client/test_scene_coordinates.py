@@ -5,6 +5,7 @@ once-per-description warning for a point off the scene."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import pickle
 import warnings
@@ -268,3 +269,30 @@ def test_malformed_extent_is_a_protocol_error(extent: Any, message: str) -> None
 def test_malformed_film_is_a_protocol_error(film: Any) -> None:
     with pytest.raises(ProtocolError, match="film must be a bool"):
         SceneInfo.from_reply({**_reply(_info()), "film": film})
+
+
+def test_triangles_round_trip_and_are_left_out_when_none() -> None:
+    info = _info()  # 25 points
+    assert "triangles" not in _reply(info) and SceneInfo.from_reply(_reply(info)).triangles is None
+    triangles = np.array([[0, 1, 5], [5, 1, 6]], dtype=np.int32)
+    fields = _reply(dataclasses.replace(info, triangles=triangles))
+    assert fields["triangles"] == [0, 1, 5, 5, 1, 6]
+    back = SceneInfo.from_reply(fields)
+    assert back.triangles is not None
+    np.testing.assert_array_equal(back.triangles, triangles)
+
+
+@pytest.mark.parametrize(
+    ("triangles", "message"),
+    [
+        ([0, 1], "three per triangle"),
+        ([0, 1, 2.0], "flat list of ints"),
+        ([0, 1, True], "flat list of ints"),
+        ("012", "flat list of ints"),
+        ([0, 1, 25], "index the 25 points"),
+        ([0, 1, -1], "index the 25 points"),
+    ],
+)
+def test_malformed_triangles_are_a_protocol_error(triangles: Any, message: str) -> None:
+    with pytest.raises(ProtocolError, match=message):
+        SceneInfo.from_reply({**_reply(_info()), "triangles": triangles})

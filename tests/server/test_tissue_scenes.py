@@ -61,6 +61,9 @@ def test_skin_patch_describes_itself_in_si_units(skin_patch: ServedScene) -> Non
     frame = skin_patch.query(0.5)  # no film: the rest shape, at any time
     assert not np.any(skin_patch.frame(skin_patch.timeline.resolve(0.5)))
     assert frame["scene"] == "skin-patch"
+    # The lattice as a surface for a viewer: the 20 x 20 grid's cells, all on the square.
+    triangles = np.asarray(described["triangles"]).reshape(-1, 3)
+    assert triangles.shape == (2 * 19 * 19, 3) and triangles.max() == 399
 
 
 @pytest.mark.slow

@@ -43,3 +43,15 @@ def live_server() -> Iterator[Server]:
     server.start()
     yield server
     server.stop()
+
+
+@pytest.fixture(scope="module")
+def skin_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    """A server on the physical 'skin-patch' (SI units), its FEM tables built in a temporary
+    cache (never the user's)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("MEMBRANE_CACHE_DIR", str(tmp_path_factory.mktemp("fem-cache")))
+        server = Server(["skin-patch"], bind=LOOPBACK_ANY_PORT)
+        server.start()
+        yield server
+        server.stop()

@@ -221,3 +221,52 @@ def test_the_scene_message_carries_a_point_lists_points_and_no_grids() -> None:
             message = scene_message(c.describe(), config)
         assert message["points"] == points
         json.dumps(message)  # the page gets it as JSON
+
+
+@pytest.mark.parametrize(
+    ("tool", "felt"),
+    [("sphere", lambda f: f.force > 0), ("cylinder", lambda f: f.force > 0), ("grasp", None)],
+)
+def test_a_press_with_a_rigid_tool_or_a_grasp_reaches_the_tissue(
+    live_server: Server, start_bridge: BridgeFactory, tool: str, felt: Any
+) -> None:
+    """A sphere or a cylinder presses a dent and feels a contact force; a grasp lifts the
+    tissue at its point (the frame's peak above rest) and holds it with a force."""
+    bridge = start_bridge(live_server.address, scene="membrane-live")
+    # The page's tool radius (10 % of the side): the lattice points nearest the centre are
+    # 0.037 off it, where a 0.05 sphere 0.01 deep would not reach the rest surface.
+    press = {"type": "press", "at": [0.5, 0.5], "depth": 0.02, "radius": 0.1, "tool": tool}
+    if tool == "grasp":
+        until = lambda f: f.z.reshape(20, 20)[10, 10] > 0.01 and f.force != 0.0  # noqa: E731
+    else:
+        until = lambda f: felt(f) and f.z.min() < -0.005  # noqa: E731
+    texts, frames = asyncio.run(_collect(bridge.ws_url, 0, send=[press], until=until))
+    assert frames[-1].flags & FLAG_CONTACT
+    scene = next(t for t in texts if t["type"] == "scene")
+    assert scene["tools"] == ["tip", "sphere", "cylinder", "grasp"]
+
+
+def test_the_scene_message_says_units_tools_and_a_physical_scenes_triangles(
+    tmp_path: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from membrane_server.served import ServedScene
+    from membrane_view.bridge import BridgeConfig, scene_message
+
+    monkeypatch.setenv("MEMBRANE_CACHE_DIR", str(tmp_path))
+    config = BridgeConfig(connect="tcp://127.0.0.1:9")
+    served = [ServedScene.load(name) for name in ("membrane-live", "skin-disk")]
+    with Client("in-process://", transport=InProcessTransport(Dispatcher(served))) as c:
+        live, disk = (scene_message(c.describe(n), config) for n in ("membrane-live", "skin-disk"))
+    assert live["units"] == {
+        "length": "problem units", "factor": 1.0, "force": "problem units", "physical": False,
+    }  # fmt: skip
+    assert live["triangles"] is None and live["depth_max"] == pytest.approx(0.02)
+    assert disk["units"]["length"] == "mm" and disk["units"]["force"] == "N"
+    assert disk["depth_max"] == pytest.approx(0.004)  # 10 % of the 40 mm disk
+    assert disk["radius"] == 0.0  # the plate's tables carry point forces only
+    assert disk["tools"] == ["tip", "sphere", "cylinder", "grasp"]
+    triangles = np.asarray(disk["triangles"]).reshape(-1, 3)
+    corners = served[1].evaluator.points[triangles]  # (m, 3, 2) m
+    assert 0 < len(triangles) < 2 * 16 * 16  # the disk's inside only, of the grid's cells
+    assert np.linalg.norm(corners - 0.02, axis=2).max() <= 0.02 + 1e-12
+    json.dumps(disk)

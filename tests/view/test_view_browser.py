@@ -69,20 +69,35 @@ def wait_for(page: Any, expression: str, timeout_s: float = 15.0) -> Any:
 
 
 def _canvas_pixels(page: Any) -> list[int]:
-    """A coarse sample of the surface canvas's pixels (RGB, 16 x 16 grid)."""
-    return page.evaluate(
-        """() => {
-        const c = document.getElementById('surface');
-        const ctx = c.getContext('2d');
-        const out = [];
-        for (let a = 0; a < 16; a++) for (let b = 0; b < 16; b++) {
-          const x = (a + 0.5) * c.width / 16, y = (b + 0.5) * c.height / 16;
-          const d = ctx.getImageData(x, y, 1, 1).data;
-          out.push(d[0], d[1], d[2]);
-        }
-        return out;
-    }"""
-    )
+    """A coarse sample of the surface's pixels as the page shows them (RGB, 16 x 16 grid, from
+    a screenshot: the WebGL canvas has no 2-D context to read)."""
+    image = _surface_image(page)
+    width, height = image.size
+    out: list[int] = []
+    for a in range(16):
+        for b in range(16):
+            out.extend(image.getpixel((int((a + 0.5) * width / 16), int((b + 0.5) * height / 16))))
+    return out
+
+
+def _surface_image(page: Any) -> Any:
+    """The surface and its overlay as shown, in canvas pixels (RGB)."""
+    import io
+
+    from PIL import Image
+
+    png = page.locator("#stage").screenshot()
+    width = page.evaluate("document.getElementById('surface').width")
+    height = page.evaluate("document.getElementById('surface').height")
+    with Image.open(io.BytesIO(png)) as shot:
+        return shot.convert("RGB").resize((width, height))
+
+
+def _press_at(page: Any, x: float, y: float) -> None:
+    """Press the pointer on the page where scene point (x, y) is drawn."""
+    cx, cy = page.evaluate(f"window.membraneView.clientPoint({x}, {y})")
+    page.mouse.move(cx, cy)
+    page.mouse.down()
 
 
 def test_a_film_plays_on_the_canvas(
@@ -105,16 +120,16 @@ def test_a_film_plays_on_the_canvas(
 def test_a_pointer_press_on_a_live_scene_shows_a_positive_force(
     page: Any, live_server: Server, start_bridge: BridgeFactory
 ) -> None:
+    """With the Canvas 2D heat map (the fallback, asked for): a press, its force, release."""
     bridge = start_bridge(live_server.address, scene="membrane-live")
-    page.goto(bridge.url)
+    page.goto(bridge.url + "&renderer=canvas")
     wait_for(page, "window.membraneView.framesDrawn > 3")
+    assert page.evaluate("window.membraneView.rendererName") == "canvas2d"
     assert float(page.evaluate("window.membraneView.force")) == 0.0
     page.locator("#depth").fill("0.5")  # half of the slider: 0.01 on the unit patch
-    box = page.locator("#surface").bounding_box()
-    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
-    page.mouse.down()
+    _press_at(page, 0.5, 0.5)
     wait_for(page, "window.membraneView.force > 0")
-    wait_for(page, "Number(document.getElementById('force').textContent) > 0")
+    wait_for(page, "parseFloat(document.getElementById('force').textContent) > 0")
     dent = page.evaluate(
         "(() => { const z = window.membraneView.frame.z; return z[10 * 20 + 10]; })()"
     )
@@ -134,14 +149,10 @@ def test_the_webgl_surface_draws_and_a_press_on_it_gives_a_force(
     page: Any, live_server: Server, start_bridge: BridgeFactory, tmp_path: Any
 ) -> None:
     bridge = start_bridge(live_server.address, scene="membrane-live")
-    page.goto(bridge.url + "&renderer=webgl")
+    page.goto(bridge.url)  # WebGL is the default
     wait_for(page, "window.membraneView.framesDrawn > 3")
-    renderer = page.evaluate("window.membraneView.rendererName")
-    if renderer != "webgl":
-        pytest.skip("this Chromium has no WebGL: the page fell back to Canvas 2D")
-    box = page.locator("#surface").bounding_box()
-    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] * 0.55)
-    page.mouse.down()
+    assert page.evaluate("window.membraneView.rendererName") == "webgl", "fell back to Canvas 2D"
+    _press_at(page, 0.5, 0.5)
     wait_for(page, "window.membraneView.force > 0")
     from PIL import Image
 
@@ -315,12 +326,104 @@ def test_a_refused_message_is_shown_and_the_page_stays_connected(
     assert state["connects"] == 1 and state["connected"] and state["force"] == 0, state
     assert state["framesReceived"] > frames + 20, state
     assert len(server.sessions) == 1
-    box = page.locator("#surface").bounding_box()
-    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
-    page.mouse.down()
+    _press_at(page, 0.5, 0.5)
     wait_for(page, "window.membraneView.force > 0")
     page.mouse.up()
     wait_for(page, "window.membraneView.force === 0")
     page.locator("#reset").click()
     wait_for(page, "window.membraneView.frame.k < 500")
     assert page.evaluate("window.membraneView.connects") == 1
+
+
+# The labels as the page shows them, and the frame they were drawn from, read in one evaluation
+# (the page draws between two evaluations, never during one).
+LABELS = """(() => {
+  const v = window.membraneView, text = (id) => document.getElementById(id).textContent;
+  return {
+    renderer: v.rendererName, range: v.drawn.range, factor: v.units.factor,
+    tickMin: text('tick-min'), tickMax: text('tick-max'), colourUnit: text('colour-unit'),
+    force: text('force'), depth: text('depth-value'), scaleBar: v.scaleBarLabel,
+  };
+})()"""
+
+
+def _ticks_match_the_frame(labels: dict[str, Any]) -> None:
+    """The colour bar's ticks are the drawn frame's min and max (display units), 2 digits."""
+    for tick, value in (("tickMin", "lo"), ("tickMax", "hi")):
+        shown = float(labels[tick])
+        expected = float(f"{labels['range'][value] * labels['factor']:.2g}")
+        assert shown == pytest.approx(expected, rel=1e-12, abs=0.0), (tick, labels)
+
+
+def test_the_default_page_is_a_webgl_surface_with_its_colour_bar_and_units(
+    page: Any, live_server: Server, start_bridge: BridgeFactory
+) -> None:
+    bridge = start_bridge(live_server.address, scene="membrane-live")
+    page.goto(bridge.url)
+    wait_for(page, "window.membraneView.framesDrawn > 3")
+    _press_at(page, 0.5, 0.5)  # the soft tip: a dent, so that min and max differ
+    wait_for(page, "window.membraneView.drawn?.range.lo < -0.001")
+    labels = page.evaluate(LABELS)
+    assert labels["renderer"] == "webgl", "the default page fell back to Canvas 2D"
+    _ticks_match_the_frame(labels)
+    assert labels["colourUnit"] == "(problem units)"
+    assert labels["force"].endswith(" problem units") and labels["scaleBar"] == "0.2 problem units"
+    assert len(set(_canvas_pixels(page))) > 30, "the WebGL surface is blank"
+
+
+def test_on_the_skin_patch_the_labels_are_in_mm_and_n(
+    page: Any, skin_server: Server, start_bridge: BridgeFactory
+) -> None:
+    bridge = start_bridge(skin_server.address, scene="skin-patch", timeout=10.0)
+    page.goto(bridge.url)
+    wait_for(page, "window.membraneView.framesDrawn > 3")
+    page.select_option("#tool", "sphere")
+    page.locator("#depth").fill("0.4")  # 2 mm of the slider's 5
+    _press_at(page, 0.025, 0.025)
+    wait_for(page, "window.membraneView.force > 0.1")
+    labels = page.evaluate(LABELS)
+    assert labels["renderer"] == "webgl"
+    _ticks_match_the_frame(labels)
+    # The dent, in mm: the 5 mm sphere 2 mm deep; the lattice points nearest its centre are
+    # 1.84 mm off it, where its surface is 1.65 mm deep.
+    assert -2.0 <= labels["range"]["lo"] * 1e3 <= -1.6
+    assert labels["colourUnit"] == "(mm)" and labels["depth"] == "2 mm"
+    assert labels["force"].endswith(" N") and float(labels["force"].split()[0]) > 0.1
+    assert labels["scaleBar"] == "10 mm"
+    page.mouse.up()
+
+
+def test_a_press_darkens_the_surface_under_the_tool_by_a_tenth_of_the_colour_range(
+    page: Any, skin_server: Server, start_bridge: BridgeFactory
+) -> None:
+    """On the 20 x 20 skin patch: the mean pixel value under the tool, pressed against the page
+    at rest, moves by at least 10 % of the colour ramp's range (its two ends' mean RGB)."""
+    bridge = start_bridge(skin_server.address, scene="skin-patch", timeout=10.0)
+    page.goto(bridge.url)
+    wait_for(page, "window.membraneView.framesDrawn > 3")
+    assert page.evaluate("window.membraneView.scene.shape") == [20, 20]
+    at_rest = _surface_image(page)
+    page.select_option("#tool", "sphere")
+    page.locator("#depth").fill("0.6")  # 3 mm
+    _press_at(page, 0.025, 0.025)
+    wait_for(page, "window.membraneView.force > 0.1 && window.membraneView.toolScreen")
+    page.wait_for_timeout(300)
+    spot = page.evaluate("window.membraneView.toolScreen")
+    pressed = _surface_image(page)
+    low, high = page.evaluate("window.membraneView.rampEnds")
+    colour_range = abs(sum(high) - sum(low)) / 3
+    radius = max(4.0, 0.5 * spot["r"])
+    change = _disc_mean(pressed, spot, radius) - _disc_mean(at_rest, spot, radius)
+    assert abs(change) >= 0.1 * colour_range, (change, colour_range, spot)
+    page.mouse.up()
+
+
+def _disc_mean(image: Any, spot: dict[str, float], radius: float) -> float:
+    """The mean of R, G and B over the pixels within ``radius`` of the spot."""
+    values = []
+    for x in range(int(spot["x"] - radius), int(spot["x"] + radius) + 1):
+        for y in range(int(spot["y"] - radius), int(spot["y"] + radius) + 1):
+            if (x - spot["x"]) ** 2 + (y - spot["y"]) ** 2 <= radius**2:
+                values.append(sum(image.getpixel((x, y))) / 3)
+    assert values, spot
+    return sum(values) / len(values)

@@ -207,3 +207,35 @@ def test_a_press_the_server_refuses_keeps_the_session(
     assert errors[0]["source"] == "page" and len(errors[0]["message"]) <= MAX_ERROR_CHARS
     assert not [m for m in got if m["type"] == "scene"], "the bridge reconnected"
     assert sessions == 1 and ks[1] > ks[0] and all(f == 0.0 for f in forces)
+
+
+ALL_TOOLS = ("tip", "sphere", "cylinder", "grasp")
+
+
+@pytest.mark.parametrize("tool", ALL_TOOLS)
+def test_a_press_names_the_tool_it_presses_with(tool: str) -> None:
+    press = parse_page_message(_press(tool=tool), LIMITS, max_depth=0.02, tools=ALL_TOOLS)
+    assert press.tool == tool and press.probe == ((0.5, 0.5), 0.01, 0.05)
+
+
+@pytest.mark.parametrize(
+    ("fields", "tools", "says"),
+    [
+        ({"tool": "scalpel"}, ALL_TOOLS, "tool 'scalpel': this scene takes tip, sphere"),
+        ({"tool": ["sphere"]}, ALL_TOOLS, "tool an array of 1"),
+        ({"tool": "grasp"}, ("sphere", "cylinder"), "this scene takes sphere, cylinder"),
+        ({"tool": "sphere", "radius": 0.0}, ALL_TOOLS, "radius must be > 0"),
+        ({"tool": "sphere", "depth": 0.03}, ALL_TOOLS, "in [0, 0.02]"),
+    ],
+)
+def test_a_tool_the_scene_does_not_take_is_refused(
+    fields: dict[str, Any], tools: tuple[str, ...], says: str
+) -> None:
+    lax = LiveLimits(2, min_radius=0.0, point_forces=True)
+    with pytest.raises(PageInputError, match=None) as caught:
+        parse_page_message(_press(**fields), lax, max_depth=0.02, tools=tools)
+    assert says in str(caught.value), caught.value
+
+
+def test_a_press_without_a_tool_is_the_soft_tip() -> None:
+    assert parse_page_message(json.dumps(GOOD), LIMITS, max_depth=0.02).tool == "tip"

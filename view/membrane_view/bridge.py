@@ -54,12 +54,17 @@ from membrane_client.curve import SocketOptions
 from membrane_client.errors import ServerError, Timeout
 from membrane_client.frame import SceneInfo
 from membrane_client.live_limits import LiveLimits
-from membrane_client.live_schema import Probe
+from membrane_client.live_schema import Grasp, Probe, Tool
 from membrane_client.protocol import ErrorCode
-from membrane_client.session import Session
+from membrane_client.session import LiveFrame, Session
 from membrane_errors import MembraneError
 from membrane_view.guard import guard, new_token, security_headers
-from membrane_view.page_input import PageInputError, error_message, parse_page_message
+from membrane_view.page_input import (
+    PAGE_TOOLS,
+    PageInputError,
+    error_message,
+    parse_page_message,
+)
 from membrane_view.wire import FLAG_CONTACT, FLAG_LIVE, encode_frame
 
 __all__ = ["BridgeConfig", "make_app", "static_dir"]
@@ -102,15 +107,34 @@ class BridgeConfig:
 
 @dataclass
 class Pointer:
-    """The page's pointer: a probe while pressed."""
+    """The page's pointer: while pressed, the tool it presses with (``page_input.PAGE_TOOLS``)."""
 
     at: tuple[float, ...] | None = None
     depth: float = 0.0
     radius: float = 0.05
+    tool: str = "tip"
     reset: bool = False
 
-    def probes(self) -> list[Probe]:
-        return [] if self.at is None else [Probe(self.at, self.depth, self.radius)]
+    def inputs(self) -> StepInputs:
+        """The step's inputs: a probe (the soft tip), a rigid tool, or a grasp held at +depth."""
+        if self.at is None:
+            return StepInputs()
+        if self.tool == "grasp":
+            return StepInputs(grasps=(Grasp(self.at, self.depth, self.radius),))
+        if self.tool in ("sphere", "cylinder"):
+            return StepInputs(tools=(Tool(self.tool, self.at, self.depth, self.radius),))
+        return StepInputs(probes=(Probe(self.at, self.depth, self.radius),))
+
+
+class StepInputs(NamedTuple):
+    """What one step presses with (at most one of them, from the pointer)."""
+
+    probes: tuple[Probe, ...] = ()
+    tools: tuple[Tool, ...] = ()
+    grasps: tuple[Grasp, ...] = ()
+
+    def __bool__(self) -> bool:
+        return bool(self.probes or self.tools or self.grasps)
 
 
 @dataclass
@@ -138,7 +162,8 @@ def scene_message(info: SceneInfo, config: BridgeConfig) -> dict[str, Any]:
     points = np.asarray(info.points, dtype=np.float64)
     live = bool(info.live)
     lo, hi = points.min(axis=0), points.max(axis=0)
-    extent = float(np.max(hi - lo)) if points.size else 1.0
+    extent = _extent(info)
+    triangles = info.triangles
     return {
         "type": "scene",
         "name": info.name,
@@ -152,15 +177,47 @@ def scene_message(info: SceneInfo, config: BridgeConfig) -> dict[str, Any]:
         "live": live,
         "speed": config.speed,
         "fps": config.fps,
-        # a probe's depth and radius in problem units: the slider's range (a press deeper than
-        # depth_max is refused)
+        "units": display_units(info),
+        # a press's depth and radius in the scene's units: the slider's range (a press deeper
+        # than depth_max is refused)
         "depth_max": depth_max(info),
-        "radius": 0.05 * extent,
+        "radius": tip_radius(info),
+        "tool_radius": 0.1 * extent,
+        "tools": page_tools(info),
         "min_radius": float(info.live.get("min_radius", 0.0)) if live else 0.0,
         # A point list (shape (n,)) is drawn where its points are: a rope along their x, a
-        # membrane's points as a scatter. Grids need none (their shape says it all).
+        # membrane's points as a scatter or on their triangles. A grid needs no points.
         "points": points.tolist() if len(info.shape) == 1 else None,
+        # A physical scene's lattice triangles on the tissue (a disk's grid: its inside only).
+        "triangles": None if triangles is None else [int(v) for v in triangles.reshape(-1)],
     }
+
+
+def display_units(info: SceneInfo) -> dict[str, Any]:
+    """How the page labels lengths, displacements and forces: mm and N on a physical scene (SI
+    on the wire, lengths shown x 1000), "problem units" on a dimensionless one."""
+    if info.units.get("length") == "m":
+        return {"length": "mm", "factor": 1e3, "force": "N", "physical": True}
+    return {"length": "problem units", "factor": 1.0, "force": "problem units", "physical": False}
+
+
+def page_tools(info: SceneInfo) -> list[str]:
+    """The page's tools the live scene takes, in ``PAGE_TOOLS``'s order (none on a film)."""
+    if not info.live:
+        return []
+    inputs = set(info.live.get("inputs", ["probes"]))
+    kinds = set(info.live.get("tool_kinds", ()))
+    takes = {"tip": "probes" in inputs, "grasp": "grasps" in inputs}
+    return [t for t in PAGE_TOOLS if takes.get(t, "tools" in inputs and t in kinds)]
+
+
+def tip_radius(info: SceneInfo) -> float:
+    """The soft tip's (and the grasp's) footprint: the largest a tissue's tables carry (a point,
+    0, on the skin patch), else 5 % of the lattice's extent."""
+    radii = info.live.get("radii") if info.live else None
+    if radii:
+        return float(max(radii))
+    return 0.05 * _extent(info)
 
 
 def _extent(info: SceneInfo) -> float:
@@ -177,9 +234,11 @@ def live_limits(info: SceneInfo) -> LiveLimits | None:
 
 
 def depth_max(info: SceneInfo) -> float:
-    """The page slider's deepest press: 2 % of the lattice's extent (problem units), or the
+    """The page slider's deepest press: 2 % of the lattice's extent on a dimensionless scene,
+    10 % on a physical one (5 mm on a 50 mm patch: large deflection on a 3 mm plate), or the
     scene's own ``max_depth`` if that is less. A press deeper than it is refused."""
-    slider = 0.02 * _extent(info)
+    share = 0.1 if display_units(info)["physical"] else 0.02
+    slider = share * _extent(info)
     limits = live_limits(info)
     return slider if limits is None else min(slider, limits.max_depth)
 
@@ -218,6 +277,7 @@ class Player:
         self.info: SceneInfo | None = None
         self.limits: LiveLimits | None = None
         self.depth_max = 0.0
+        self.tools: tuple[str, ...] = ()
         self.last_bridge_us = 0.0
         self.skipped = 0  # steps of wall-clock time not taken (dropped, or before a reset)
         self.inflight: Future[Any] | None = None
@@ -245,13 +305,16 @@ class Player:
                 if self.info is not None
                 else "no scene yet: press once the scene message has come"
             )
-            message = parse_page_message(text, self.limits, self.depth_max, no_press)
+            message = parse_page_message(
+                text, self.limits, self.depth_max, no_press, tools=self.tools
+            )
         except PageInputError as exc:
             await self.send_json(error_message(f"page message refused: {exc}", source="page"))
             return
         if message.probe is not None:
             probe = message.probe
             self.pointer.at, self.pointer.depth, self.pointer.radius = probe
+            self.pointer.tool = message.tool
         elif message.kind == "release":
             self.pointer.at = None
         elif message.kind == "reset":
@@ -276,6 +339,7 @@ class Player:
         self.info = info
         self.limits = live_limits(info)
         self.depth_max = depth_max(info)
+        self.tools = tuple(page_tools(info))
         self.pointer.at = None
 
     def _close_after(self, pending: Future[Any] | None) -> None:
@@ -396,15 +460,19 @@ class Player:
         if due <= 0:
             return None
         deadline = time.perf_counter() + budget_s
-        probes = self.pointer.probes()
+        inputs = self.pointer.inputs()
         taken = 1
         try:
             while taken < due and time.perf_counter() < deadline:
-                session.step(probes=probes, frame=False)
+                session.step(
+                    probes=inputs.probes, tools=inputs.tools, grasps=inputs.grasps, frame=False
+                )
                 taken += 1
-            frame = session.step(probes=probes, frame=True)
+            frame = session.step(
+                probes=inputs.probes, tools=inputs.tools, grasps=inputs.grasps, frame=True
+            )
         except ServerError as exc:
-            if exc.code != ErrorCode.BAD_REQUEST or not probes:
+            if exc.code != ErrorCode.BAD_REQUEST or not inputs:
                 raise
             self.skipped += due - taken  # the refused step's wall-clock time is not taken
             raise StepRefused(f"the server refused the press: {exc.message}") from None
@@ -412,8 +480,8 @@ class Player:
         self.counters.steps += taken
         self.counters.dropped_steps += due - taken
         self.skipped += due - taken
-        force = frame.probes[0].force if frame.probes else 0.0
-        flags = FLAG_LIVE | (FLAG_CONTACT if frame.probes and frame.probes[0].in_contact else 0)
+        force, contact = _felt(frame)
+        flags = FLAG_LIVE | (FLAG_CONTACT if contact else 0)
         assert frame.z is not None
         return Got(frame.k, frame.t, frame.z, force, flags, received)
 
@@ -427,6 +495,18 @@ class Player:
             "live_steps": (stats.live or {}).get("steps"),
             "uptime_s": stats.uptime_s,
         }
+
+
+def _felt(frame: LiveFrame) -> tuple[float, float]:
+    """The pressing tool's force (N or problem units) and whether it touches: a probe's or a
+    tool's contact force (>= 0), a grasp's holding force (> 0 lifts the tissue)."""
+    if frame.probes:
+        return frame.probes[0].force, frame.probes[0].in_contact
+    if frame.tools:
+        return frame.tools[0].force, frame.tools[0].contacts > 0
+    if frame.grasps:
+        return frame.grasps[0].force, not frame.grasps[0].outside
+    return 0.0, False
 
 
 def _short(text: str, limit: int = 64) -> str:

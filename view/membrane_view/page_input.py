@@ -5,8 +5,11 @@ WebSocket, and a bad probe passed on would cost a server round trip or the sessi
 text message is bounded in size and nesting before it is parsed (``json.loads`` recurses, and
 a deep array raised RecursionError out of the receive loop), and a press goes through the
 client's ``LiveLimits`` with the scene's own bounds, its depth within the slider's range.
-A press is a probe's wire map (``live_schema.Probe``) plus its ``type``, and is read as one.
-A refused message is answered with one short error and changes nothing.
+A press is a probe's wire map (``live_schema.Probe``) plus its ``type`` and, optionally, the
+``tool`` that presses (``PAGE_TOOLS``: a soft tip, the probe, by default; a rigid sphere or
+cylinder; a grasp, which holds the tissue ``depth`` above rest): its place, depth and radius are
+checked as a probe's, and the tool must be one the scene takes. A refused message is answered
+with one short error and changes nothing.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ __all__ = [
     "MAX_ERROR_CHARS",
     "MAX_MESSAGE_CHARS",
     "MAX_NESTING",
+    "PAGE_TOOLS",
     "PageInputError",
     "PageMessage",
     "error_message",
@@ -37,6 +41,8 @@ MAX_ERROR_CHARS = 300
 _PROBE_KEYS = frozenset(PROBE_KEYS)
 _PROBE_NAMES = f"{', '.join(PROBE_KEYS[:-1])} and {PROBE_KEYS[-1]}"
 _KINDS = ("press", "release", "reset")
+# What presses: the probe (a soft tip), the two rigid tools, a grasp (held at +depth).
+PAGE_TOOLS = ("tip", "sphere", "cylinder", "grasp")
 
 
 class PageInputError(UserError):
@@ -45,10 +51,12 @@ class PageInputError(UserError):
 
 @dataclass(frozen=True)
 class PageMessage:
-    """A checked message: ``kind`` is press, release or reset; a press carries its probe."""
+    """A checked message: ``kind`` is press, release or reset; a press carries its probe (the
+    place, depth and radius of whichever ``tool`` presses)."""
 
     kind: str
     probe: Probe | None = None
+    tool: str = "tip"
 
 
 def parse_page_message(
@@ -56,6 +64,7 @@ def parse_page_message(
     limits: LiveLimits | None,
     max_depth: float,
     no_press: str = "press needs a live scene (this one plays a film)",
+    tools: tuple[str, ...] = ("tip",),
 ) -> PageMessage:
     """Check one text message from the page.
 
@@ -65,6 +74,7 @@ def parse_page_message(
         max_depth: the slider's maximum depth; a press deeper than it (or than the scene's own
             bound, whichever is tighter) is refused.
         no_press: why, when ``limits`` is None (a film, or no scene described yet).
+        tools: the ``PAGE_TOOLS`` the scene takes.
 
     Raises:
         PageInputError: what is wrong, in one line quoting at most 64 characters of any value.
@@ -89,12 +99,16 @@ def parse_page_message(
         if len(message) > 1:
             raise PageInputError(f"{kind} takes no fields besides type ({len(message) - 1} sent)")
         return PageMessage(kind)
-    fields = {key: value for key, value in message.items() if key != "type"}
+    fields = {key: value for key, value in message.items() if key not in ("type", "tool")}
+    tool = message.get("tool", "tip")
+    if tool not in tools:
+        raise PageInputError(f"tool {_kind(tool)}: this scene takes {', '.join(tools)}")
     if fields.keys() != _PROBE_KEYS:
         missing = sorted(_PROBE_KEYS - fields.keys())
         extra = len(fields.keys() - _PROBE_KEYS)
         raise PageInputError(
-            f"press takes exactly {_PROBE_NAMES} (missing {missing}, {extra} other)"
+            f"press takes exactly {_PROBE_NAMES}, and a tool or not (missing {missing}, "
+            f"{extra} other)"
         )
     if limits is None:
         raise PageInputError(no_press)
@@ -102,7 +116,9 @@ def parse_page_message(
         probe = limits.probe_from_wire(fields, max_depth=max_depth, min_depth=0.0)  # presses only
     except UserError as exc:
         raise PageInputError(str(exc)) from None
-    return PageMessage("press", probe)
+    if tool in ("sphere", "cylinder") and not probe.radius > 0.0:
+        raise PageInputError(f"a {tool}'s radius must be > 0, got {probe.radius:.6g}")
+    return PageMessage("press", probe, tool)
 
 
 def nesting_exceeds(text: str, limit: int) -> bool:
