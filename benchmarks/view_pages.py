@@ -5,9 +5,10 @@ over the window, draws and frames per second; per process: CPU seconds over the 
 saturates the machine's cores).
 
     .venv/bin/python benchmarks/view_pages.py [--pages 3] [--seconds 10] [--scene membrane-live]
-        [--renderer webgl|canvas] [--profile bridge.prof]
+        [--renderer webgl|canvas] [--no-press] [--profile server|bridge]
 
-``--profile`` runs the bridge under cProfile (its top functions printed; the file kept).
+``--profile`` runs the server (or the bridge) under cProfile and prints its top functions by
+own time; ``--no-press`` leaves the pages unpressed (free steps).
 """
 
 from __future__ import annotations
@@ -59,10 +60,18 @@ def _children(pid: int) -> list[int]:
     return out
 
 
+def _profiled(command: list[str], profile: Path | None) -> list[str]:
+    return (
+        command
+        if profile is None
+        else [sys.executable, "-m", "cProfile", "-o", str(profile), *command]
+    )
+
+
 def _start_view(address: str, scene: str, profile: Path | None) -> tuple[subprocess.Popen, str]:
-    command = [MEMBRANE, "view", "--connect", address, "--scene", scene, "--port", "0"]
-    if profile is not None:
-        command = [sys.executable, "-m", "cProfile", "-o", str(profile), *command]
+    command = _profiled(
+        [MEMBRANE, "view", "--connect", address, "--scene", scene, "--port", "0"], profile
+    )
     view = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     assert view.stdout is not None
     for line in view.stdout:
@@ -78,14 +87,17 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--scene", default="membrane-live")
     parser.add_argument("--renderer", choices=["webgl", "canvas"], default="webgl")
-    parser.add_argument("--profile", type=Path)
+    parser.add_argument("--no-press", action="store_true")
+    parser.add_argument("--profile", choices=["server", "bridge"])
     args = parser.parse_args()
+    profile = Path(f"/tmp/view_pages.{args.profile}.prof") if args.profile else None
     address = f"tcp://127.0.0.1:{_free_port()}"
     serve = subprocess.Popen(
-        [MEMBRANE, "serve", "--scene", args.scene, "--bind", address],
+        _profiled([MEMBRANE, "serve", "--scene", args.scene, "--bind", address],
+                  profile if args.profile == "server" else None),
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
-    view, url = _start_view(address, args.scene, args.profile)
+    view, url = _start_view(address, args.scene, profile if args.profile == "bridge" else None)
     results: dict[str, object] = {}
     try:
         with sync_playwright() as playwright:
@@ -102,7 +114,8 @@ def main() -> int:
                     " (s.lo[1] + s.hi[1]) / 2); })()"
                 )
                 page.mouse.move(x, y)
-                page.mouse.down()
+                if not args.no_press:
+                    page.mouse.down()
                 pages.append(page)
             pages[0].wait_for_timeout(2500)  # pressed, and a stats message or two since
             read = (
@@ -123,6 +136,7 @@ def main() -> int:
             cpu = {n: round(_cpu_seconds(pids) - cpu0[n], 2) for n, pids in processes.items()}
             results = {
                 "scene": args.scene, "renderer": args.renderer, "pages": args.pages,
+                "pressed": not args.no_press,
                 "seconds": round(elapsed, 2), "cpu_seconds": cpu, "cores": os.cpu_count(),
                 "per_page": [_page(b, a, elapsed) for b, a in zip(before, after, strict=True)],
             }  # fmt: skip
@@ -133,16 +147,16 @@ def main() -> int:
         view.wait(timeout=30)
         serve.wait(timeout=30)
     print(json.dumps(results, indent=2))
-    if args.profile is not None:
+    if profile is not None:
         import pstats
 
-        pstats.Stats(str(args.profile)).sort_stats("tottime").print_stats(15)
+        pstats.Stats(str(profile)).sort_stats("tottime").print_stats(20)
     return 0
 
 
 def _chromium_pids() -> list[int]:
     """Every Chromium process (the browser, its GPU and renderer processes)."""
-    out = subprocess.run(["pgrep", "-f", CHROMIUM], capture_output=True, text=True)
+    out = subprocess.run(["pgrep", "-f", "chromium"], capture_output=True, text=True)
     return [int(pid) for pid in out.stdout.split()]
 
 

@@ -1,9 +1,10 @@
 """Figures for docs/VIEW.md (not a test): the page's own draw rate in headless Chromium for the
-20 x 20 membrane and a 100 x 100 lattice, the bridge's time per frame, and the README's screenshot.
+20 x 20 membrane and a 100 x 100 lattice, one page at a time, and the bridge's time per frame.
 
-    .venv/bin/python benchmarks/view_rates.py [--screenshot docs/view.png] [--seconds 5]
+    .venv/bin/python benchmarks/view_rates.py [--renderer webgl|canvas] [--seconds 5]
 
-Servers and bridges run in this process on loopback, as in the tests.
+Servers and bridges run in this process on loopback, as in the tests. Several pages at once on
+one server: benchmarks/view_pages.py; the README's screenshot and GIF: view_capture.py.
 """
 
 from __future__ import annotations
@@ -43,9 +44,8 @@ def _scene(n: int) -> ServedScene:
 
 def main() -> int:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--screenshot", type=Path)
     parser.add_argument("--seconds", type=float, default=5.0)
-    parser.add_argument("--renderer", choices=["canvas2d", "webgl"], default="canvas2d")
+    parser.add_argument("--renderer", choices=["canvas", "webgl"], default="webgl")
     parser.add_argument("--scenes", default="membrane-20,membrane-100,membrane-live")
     args = parser.parse_args()
     wanted = args.scenes.split(",")
@@ -60,13 +60,12 @@ def main() -> int:
                 bridge = BridgeThread(BridgeConfig(connect=server.address, scene=scene))
                 # bypass_csp: the page's policy forbids the eval wait_for_function relies on
                 page = browser.new_page(viewport={"width": 1100, "height": 760}, bypass_csp=True)
-                page.goto(bridge.url + ("&renderer=webgl" if args.renderer == "webgl" else ""))
+                page.goto(bridge.url + ("&renderer=canvas" if args.renderer == "canvas" else ""))
                 page.wait_for_function("window.membraneView.framesDrawn > 10", timeout=30000)
                 if scene == "membrane-live":
                     page.locator("#depth").fill("0.5")
-                    box = page.locator("#surface").bounding_box()
-                    assert box is not None
-                    page.mouse.move(box["x"] + box["width"] * 0.4, box["y"] + box["height"] * 0.4)
+                    x, y = page.evaluate("window.membraneView.clientPoint(0.4, 0.6)")
+                    page.mouse.move(x, y)
                     page.mouse.down()
                 draws0, frames0, stats0 = page.evaluate(
                     "[window.membraneView.draws, window.membraneView.framesReceived,"
@@ -89,8 +88,6 @@ def main() -> int:
                     "server_latency_us": stats["server"]["latency_us"],
                     "renderer": page.evaluate("window.membraneView.rendererName"),
                 }
-                if scene == "membrane-live" and args.screenshot:
-                    page.screenshot(path=str(args.screenshot))
                 page.close()
                 bridge.stop()
             browser.close()

@@ -78,6 +78,9 @@ MAX_REQUEST_BYTES = 128 * 1024
 MAX_LATTICE_POINTS = 65_536
 MAX_SESSION_CHARS = 64
 MAX_TOKEN_CHARS = 64  # a live Session's re-send token (``token``)
+# Steps one ``step`` request takes (``repeat``): a display's push at 30 frames/s of a 1 kHz
+# scene, and no more, so that one request stalls the other sessions at most this many steps.
+MAX_REPEAT = 32
 # An error reply's message: one line of at most this many characters (quoting at most
 # codec.PREVIEW_CHARS of any client value).
 MAX_ERROR_CHARS = 300
@@ -158,6 +161,8 @@ class Request:
     strict: bool = False
     # step: each probe's reading also gives the next step's free displacement (``next_free``)
     lookahead: bool = False
+    # step: how many steps to take under the same inputs (the frame and readings: the last's)
+    repeat: int = 1
     initial: dict[str, Any] | None = None  # open: {displacement, velocity} arrays
     token: str | None = None  # live ops: the Session object's own token (re-sends carry it)
 
@@ -176,6 +181,8 @@ class Request:
             message["strict"] = True
         if self.lookahead:
             message["lookahead"] = True
+        if self.repeat != 1:
+            message["repeat"] = self.repeat
         return encode(message)
 
     @classmethod
@@ -274,6 +281,10 @@ class Request:
             )
         self.strict = self._flag(message, "strict")
         self.lookahead = self._flag(message, "lookahead")
+        self.repeat = repeat = message.get("repeat", 1)
+        if type(repeat) is not int or not 1 <= repeat <= MAX_REPEAT:
+            reason = f"'repeat' must be an int in [1, {MAX_REPEAT}], got {preview(repeat)}"
+            self._refuse(ErrorCode.BAD_REQUEST, reason)
 
     def _flag(self, message: dict[str, Any], key: str) -> bool:
         value = message.get(key, False)

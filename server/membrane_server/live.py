@@ -55,6 +55,7 @@ from membrane_models.live import (
     Probe,
     ProbeReading,
     Start,
+    StepResult,
     Tool,
     ToolReading,
 )
@@ -205,7 +206,7 @@ class LiveOps:
         k = request.k
         if k != session.k:
             last = session.last_step
-            if k == session.k - 1 and last is not None and last.resent_by(request):
+            if k == session.last_k and last is not None and last.resent_by(request):
                 self.table.counts["resent"] += 1
                 return last.reply_to(request)  # a re-send: never applied twice
             self.table.counts["mismatches"] += 1
@@ -231,12 +232,12 @@ class LiveOps:
                 ErrorCode.BAD_REQUEST, "'lookahead' is for steps of loads and probes only"
             )
         try:
-            result = engine.step(session.state, loads, probes, frame=request.frame, **held)
+            result = _steps(engine, session.state, request, loads, probes, held)
         except LiveError as exc:
             raise wire_error(exc) from None
         ahead = _lookahead(engine, result.state, loads, probes) if request.lookahead else None
-        session.apply(result)
-        self.table.counts["steps"] += 1
+        session.apply(result, request.repeat)
+        self.table.counts["steps"] += request.repeat
         fields = self._state_reply(request, session, result.frame, ahead=ahead).to_reply_fields()
         reply = encode(ok_reply(request.id, **fields))
         session.last_step = Sent(request.token, request.id, reply)
@@ -291,6 +292,23 @@ class LiveOps:
             token=token,
             dtype=request.dtype,
         )
+
+
+def _steps(
+    engine: LiveEngine[Any],
+    state: Any,
+    request: Request,
+    loads: tuple[Load, ...],
+    probes: tuple[Probe, ...],
+    held: dict[str, Any],
+) -> StepResult[Any]:
+    """``request.repeat`` steps under the same inputs, the frame on the last only. The session
+    takes the result only once all are taken: a refusal on any leaves it as it was."""
+    for remaining in range(request.repeat - 1, -1, -1):
+        frame = request.frame and remaining == 0
+        result = engine.step(state, loads, probes, frame=frame, **held)
+        state = result.state
+    return result
 
 
 def _lookahead(

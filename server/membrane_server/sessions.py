@@ -88,6 +88,7 @@ class LiveSession:
     owner: str = ""  # the peer that opened it ("key:..." binds it to that CurveZMQ key)
     k: int = 0  # steps taken (counted here: an engine's state type is its own)
     last_step: Sent | None = None  # the latest step
+    last_k: int = -1  # the ``k`` the latest step asked for (a re-send asks it again)
     readings: tuple[ProbeReading, ...] = ()
     grasp_readings: tuple[GraspReading, ...] = ()
     tool_readings: tuple[ToolReading, ...] = ()
@@ -108,12 +109,15 @@ class LiveSession:
         """A key-bound session is its key's alone; without keys the id is the credential."""
         return not self.owner.startswith("key:") or peer == self.owner
 
-    def apply(self, result: StepResult[Any]) -> None:
-        self.state, self.readings, self.k = result.state, result.probes, self.k + 1
+    def apply(self, result: StepResult[Any], steps: int = 1) -> None:
+        """The state after ``steps`` steps (one request's), and its last step's readings."""
+        self.last_k = self.k
+        self.state, self.readings, self.k = result.state, result.probes, self.k + steps
         self.grasp_readings, self.tool_readings = result.grasps, result.tools
 
     def reset(self) -> None:
         self.state, self.readings, self.last_step, self.k = self.start.state, (), None, 0
+        self.last_k = -1
         self.grasp_readings, self.tool_readings = (), ()
 
 

@@ -335,12 +335,14 @@ def test_a_refused_message_is_shown_and_the_page_stays_connected(
     assert page.evaluate("window.membraneView.connects") == 1
 
 
-# The labels as the page shows them, and the frame they were drawn from, read in one evaluation
-# (the page draws between two evaluations, never during one).
+# The labels as the page shows them, and the range of the frame they were drawn from, read in one
+# evaluation (the page draws between two evaluations, never during one).
 LABELS = """(() => {
   const v = window.membraneView, text = (id) => document.getElementById(id).textContent;
+  let lo = Infinity, hi = -Infinity;
+  for (const value of v.drawn.z) { lo = Math.min(lo, value); hi = Math.max(hi, value); }
   return {
-    renderer: v.rendererName, range: v.drawn.range, factor: v.units.factor,
+    renderer: v.rendererName, range: { lo, hi }, factor: v.units.factor,
     tickMin: text('tick-min'), tickMax: text('tick-max'), colourUnit: text('colour-unit'),
     force: text('force'), depth: text('depth-value'), scaleBar: v.scaleBarLabel,
   };

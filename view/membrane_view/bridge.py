@@ -55,7 +55,7 @@ from membrane_client.errors import ServerError, Timeout
 from membrane_client.frame import SceneInfo
 from membrane_client.live_limits import LiveLimits
 from membrane_client.live_schema import Grasp, Probe, Tool
-from membrane_client.protocol import ErrorCode
+from membrane_client.protocol import MAX_REPEAT, ErrorCode
 from membrane_client.session import LiveFrame, Session
 from membrane_errors import MembraneError
 from membrane_view.guard import guard, new_token, security_headers
@@ -447,9 +447,10 @@ class Player:
         return Got(k, t, frame.z, float("nan"), 0, time.perf_counter())
 
     def _steps(self, info: SceneInfo, sim_elapsed: float, budget_s: float) -> Got | None:
-        """The steps due by ``sim_elapsed``, the last with a frame, within ``budget_s`` of wall
-        clock; the steps left when the budget runs out are dropped (the session falls behind
-        wall-clock time, counted in ``dropped_steps``) rather than queued."""
+        """The steps due by ``sim_elapsed`` in requests of up to ``MAX_REPEAT`` steps (one, at
+        60 pushes a second of a 1 kHz scene), the last with a frame, within ``budget_s`` of
+        wall clock; the steps left when the budget runs out are dropped (the session falls
+        behind wall-clock time, counted in ``dropped_steps``) rather than queued."""
         session = self.session
         assert session is not None
         if self.pointer.reset:
@@ -461,20 +462,25 @@ class Player:
             return None
         deadline = time.perf_counter() + budget_s
         inputs = self.pointer.inputs()
-        taken = 1
+        taken = 0
         try:
-            while taken < due and time.perf_counter() < deadline:
-                session.step(
-                    probes=inputs.probes, tools=inputs.tools, grasps=inputs.grasps, frame=False
+            while True:
+                repeat = min(MAX_REPEAT, due - taken)
+                last = taken + repeat == due or time.perf_counter() >= deadline
+                frame = session.step(
+                    probes=inputs.probes,
+                    tools=inputs.tools,
+                    grasps=inputs.grasps,
+                    frame=last,
+                    repeat=repeat,
                 )
-                taken += 1
-            frame = session.step(
-                probes=inputs.probes, tools=inputs.tools, grasps=inputs.grasps, frame=True
-            )
+                taken += repeat
+                if last:
+                    break
         except ServerError as exc:
             if exc.code != ErrorCode.BAD_REQUEST or not inputs:
                 raise
-            self.skipped += due - taken  # the refused step's wall-clock time is not taken
+            self.skipped += due - taken  # the refused steps' wall-clock time is not taken
             raise StepRefused(f"the server refused the press: {exc.message}") from None
         received = time.perf_counter()
         self.counters.steps += taken

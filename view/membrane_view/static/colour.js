@@ -34,12 +34,6 @@ export function frameRange(z) {
   return { lo, hi };
 }
 
-// Where value v falls on the ramp for range {lo, hi}.
-export function rampPosition(v, range) {
-  const span = range.hi - range.lo;
-  return span > 0 ? (v - range.lo) / span : 0.5;
-}
-
 // A value shown in the scene's display units, to `digits` significant digits.
 export function formatValue(value, digits = 2) {
   if (!Number.isFinite(value)) return "-";

@@ -125,7 +125,7 @@ function niceBelow(x) {
 export class Surface3D {
   // scene: the bridge's scene message (shape, lo, hi, depth_max, points, triangles).
   constructor(canvas, scene) {
-    const gl = canvas.getContext("webgl", { preserveDrawingBuffer: true, antialias: true });
+    const gl = canvas.getContext("webgl", { antialias: false });
     if (!gl) throw new Error("no WebGL");
     const grid = scene.shape.length === 2;
     if (!grid && !(scene.triangles && scene.points && scene.points[0]?.length === 2)) {

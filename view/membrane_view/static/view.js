@@ -285,11 +285,20 @@ function toolScreen(view) {
   return { x: px, y: py, r: Math.hypot(qx - cx, qy - cy) };
 }
 
+// The colour scale: the frame's own range, but at least 1 % of the slider's depth, widened
+// downwards, so that a surface at rest within rounding (or a ringing of microns after a
+// release) is not painted as a dent across the whole ramp.
+function colourRange(z) {
+  const range = frameRange(z), least = 0.01 * (state.scene?.depth_max || 0);
+  if (range.hi - range.lo < least) range.lo = range.hi - least;
+  return range;
+}
+
 // Draw every animation frame (the page's own counter measures the drawing rate).
 let lastCount = performance.now(), drawsThen = 0, framesThen = 0;
 function tick(now) {
   if (state.renderer && state.frame && state.frame.z.length === (state.scene?.shape || []).reduce((a, b) => a * b, 1)) {
-    const z = state.frame.z, range = frameRange(z), view = { range, tool: drawnTool() };
+    const z = state.frame.z, range = colourRange(z), view = { range, tool: drawnTool() };
     state.renderer.draw(z, view);
     state.drawn = { z, range, k: state.frame.k };
     state.toolScreen = toolScreen(view);
