@@ -45,6 +45,9 @@ class HelloReply:
     default_scene: str | None = None  # the scene a request naming none gets (None: several)
     session: str | None = None  # the request's session id, echoed
     limits: ServerLimits | None = None  # None from a server that sends none
+    # `membrane serve --workers N`: every worker's endpoint, this one's included (workers.py);
+    # empty from a single server
+    workers: tuple[str, ...] = ()
 
     def to_reply_fields(self) -> dict[str, Any]:
         """The reply's fields (the server writes them)."""
@@ -58,6 +61,8 @@ class HelloReply:
         }
         if self.limits is not None:
             fields["limits"] = self.limits.to_wire()
+        if self.workers:
+            fields["workers"] = list(self.workers)
         return fields
 
     @classmethod
@@ -76,6 +81,7 @@ class HelloReply:
                 default_scene=_optional_name(reply.get("default_scene")),
                 session=_optional_name(reply.get("session")),
                 limits=None if limits is None else _limits(limits),
+                workers=_names(reply.get("workers", [])),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ProtocolError(f"malformed hello reply: {exc!r}") from None

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING
@@ -117,7 +118,29 @@ def add_serve(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
         metavar="DIR",
         help="CurveZMQ: directory of the allowed clients' public .key files",
     )
+    parser.add_argument(
+        "--workers",
+        type=_worker_count,
+        default=1,
+        metavar="N|auto",
+        help="worker processes, each with its own sessions, on --bind's port and the N - 1 "
+        "after it (auto: one per core; default 1); clients hash sessions over them "
+        "(membrane_client.workers; docs/OPERATIONS.md)",
+    )
+    parser.add_argument(
+        "--worker-list",
+        metavar="ADDR,ADDR,...",
+        help="every worker's endpoint as clients reach it, which hello lists (default with "
+        "--workers: the workers' own; in a container or across machines, the names clients "
+        "use, e.g. one per pod of a StatefulSet)",
+    )
     parser.set_defaults(handler=_run_serve)
+
+
+def _worker_count(text: str) -> int:
+    if text == "auto":
+        return os.cpu_count() or 1
+    return bounded_int(1, 256)(text)
 
 
 def _run_serve(args: argparse.Namespace) -> int:
@@ -134,16 +157,47 @@ def _run_serve(args: argparse.Namespace) -> int:
     if (args.curve_secret is None) != (args.curve_clients is None):
         raise UsageError("--curve-secret and --curve-clients go together")
     _check_endpoint(args.bind)  # before the CurveZMQ warning, which would misread a bad one
+    for endpoint in (args.worker_list or "").split(",") if args.worker_list else ():
+        _check_endpoint(endpoint, "--worker-list")
     _check_curve_keys(args)  # before detaching, so that a bad key is reported here
     _make_paths_absolute(args)
     scenes = args.scene or ["membrane"]
+    if args.workers > 1:
+        return _serve_workers(scenes, args)
     if not args.daemon:
         return _serve(scenes, args, notify_ready=None)
     return _serve_detached(scenes, args)
 
 
-def _check_endpoint(bind: str) -> None:
-    """Refuse a --bind that ZeroMQ would only answer with "Invalid argument".
+def _serve_workers(scenes: list[str], args: argparse.Namespace) -> int:
+    """``--workers N``: N `membrane serve` processes with these options (``workers``)."""
+    from membrane_cli.arguments import UsageError
+    from membrane_server.workers import run_workers, worker_endpoints
+
+    if args.daemon:
+        raise UsageError("--workers runs in the foreground: start it under systemd or a pod")
+    endpoints = worker_endpoints(args.bind, args.workers)
+    advertised = args.worker_list.split(",") if args.worker_list else endpoints
+    if len(advertised) != len(endpoints):
+        raise UsageError(
+            f"--worker-list names {len(advertised)} workers, --workers {len(endpoints)}"
+        )
+    argv = [item for scene in scenes for item in ("--scene", scene)]
+    for flag, value in (
+        ("--threads", args.threads), ("--peer-budget", args.peer_budget),
+        ("--spin-us", args.spin_us), ("--blas-threads", args.blas_threads),
+        ("--max-sessions", args.max_sessions),
+        ("--max-sessions-per-peer", args.max_sessions_per_peer),
+        ("--session-idle-s", args.session_idle_s), ("--curve-secret", args.curve_secret),
+        ("--curve-clients", args.curve_clients),
+    ):  # fmt: skip
+        if value is not None:
+            argv += [flag, str(value)]
+    return run_workers(argv, endpoints, advertised)
+
+
+def _check_endpoint(bind: str, option: str = "--bind") -> None:
+    """Refuse a --bind (or ``option``) that ZeroMQ would only answer with "Invalid argument".
 
     The usual slip is a bare host:port, which needs its transport: tcp://127.0.0.1:5555.
     """
@@ -153,17 +207,17 @@ def _check_endpoint(bind: str) -> None:
     if not sep:
         example = f"tcp://{bind or '127.0.0.1:5555'}"
         raise UsageError(
-            f"--bind needs a ZeroMQ endpoint with its transport, e.g. {example}; got {bind!r}"
+            f"{option} needs a ZeroMQ endpoint with its transport, e.g. {example}; got {bind!r}"
         )
     if transport == "ipc" and rest:
         return
     if transport != "tcp":
-        raise UsageError(f"--bind: use a tcp:// (or ipc://) endpoint, got {bind!r}")
+        raise UsageError(f"{option}: use a tcp:// (or ipc://) endpoint, got {bind!r}")
     host, colon, port = rest.rpartition(":")
     # ZeroMQ itself takes port 99999 without a word (and binds some other port).
     if not colon or not host or not (port == "*" or (port.isdigit() and int(port) < 65536)):
         raise UsageError(
-            f"--bind: a tcp endpoint is tcp://HOST:PORT (PORT up to 65535; * or 0 for a free "
+            f"{option}: a tcp endpoint is tcp://HOST:PORT (PORT up to 65535; * or 0 for a free "
             f"one), e.g. tcp://127.0.0.1:5555; got {bind!r}"
         )
 
@@ -223,6 +277,7 @@ def _serve(
         server = Server(
             scenes,
             bind=args.bind,
+            workers=args.worker_list.split(",") if args.worker_list else (),
             threads=args.threads,
             context=context,
             socket_options=options,

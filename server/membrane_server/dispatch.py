@@ -74,6 +74,8 @@ class Dispatcher:
         sessions: The live sessions' table (kept across reloads by the server).
         peer_limits: Returns the per-peer figures ``hello`` states (``max_in_flight``,
             ``peer_budget_bytes``: the server's, which knows its sockets); none in process.
+        workers: Every worker's endpoint when this is one of several (``serve --workers``):
+            ``hello`` lists them, so that a client given one finds the others.
     """
 
     def __init__(
@@ -82,6 +84,7 @@ class Dispatcher:
         stats_snapshot: Callable[[], dict[str, Any]] | None = None,
         sessions: SessionTable | None = None,
         peer_limits: Callable[[], Mapping[str, int]] | None = None,
+        workers: Sequence[str] = (),
     ) -> None:
         if not scenes:
             raise ValueError("a server needs at least one scene")
@@ -91,6 +94,7 @@ class Dispatcher:
             raise ValueError(f"scene names must be distinct, got {names}")
         self._stats_snapshot = stats_snapshot or dict
         self._peer_limits = peer_limits
+        self.workers = tuple(workers)
         self._only = scenes[0] if len(scenes) == 1 else None
         # Live sessions outlive a Dispatcher: the server hands every one it makes the same table.
         self.sessions = sessions if sessions is not None else SessionTable()
@@ -183,6 +187,7 @@ class Dispatcher:
             default_scene=self.default_scene,
             session=request.session,
             limits=limits,
+            workers=self.workers,
         ).to_reply_fields()
 
     def _describe(self, request: Request) -> Prepared:

@@ -29,7 +29,7 @@ import signal
 import threading
 import time
 import weakref
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from types import FrameType, TracebackType
 from typing import Any
@@ -140,6 +140,7 @@ class Server:
         peer_budget: int = DEFAULT_PEER_BUDGET,
         spin: float = 0.0,
         sessions: SessionTable | None = None,
+        workers: Sequence[str] = (),
     ) -> None:
         if peer_budget < 1:
             raise ValueError(f"peer_budget must be a positive number of bytes, got {peer_budget}")
@@ -148,6 +149,7 @@ class Server:
         self._threads = threads
         self.stats = Stats()
         self.sessions = sessions if sessions is not None else SessionTable()  # empty is falsy
+        self.workers = tuple(workers)  # every worker's endpoint, when one of several
         served = _load_scenes(self._sources, threads)
         self.dispatcher = self._dispatcher(served)
         self.bind = bind
@@ -263,7 +265,9 @@ class Server:
     def _dispatcher(self, served: list[ServedScene]) -> Dispatcher:
         # hello's per-peer figures through a weak reference: no dispatcher keeps the server
         server = weakref.proxy(self)
-        return Dispatcher(served, self.stats.snapshot, self.sessions, lambda: server.limits)
+        return Dispatcher(
+            served, self.stats.snapshot, self.sessions, lambda: server.limits, self.workers
+        )
 
     @property
     def max_in_flight(self) -> int:

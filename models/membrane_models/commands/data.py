@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import TextIO
 
 from membrane_cli.arguments import UsageError, bounded_float, bounded_int
+from membrane_models.executors import RayExecutor, add_executor_arguments, executor_from_args
 from membrane_models.problems.string_shapes import FAMILIES  # numpy only: a core dependency
 
 __all__ = ["add_data"]
@@ -90,6 +91,7 @@ def _add_koopman_string(datasets: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--jobs", type=bounded_int(1, 64), default=1, help="processes (default 1; same bytes)"
     )
+    add_executor_arguments(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress on stderr")
     parser.set_defaults(handler=_run_koopman_string)
 
@@ -121,10 +123,17 @@ def _run_koopman_string(args: argparse.Namespace) -> int:
             noise_modes=args.noise_modes,
         ),
     )
+    where = executor_from_args(args)
+    if isinstance(where, RayExecutor) and args.jobs > 1:
+        raise UsageError("--jobs is a local process pool: give it or --executor ray, not both")
     started = time.perf_counter()
     progress = None if args.no_progress else _Progress(sys.stderr, started)
     try:
-        paths = write_datasets(spec, args.out, progress, jobs=args.jobs)
+        if isinstance(where, RayExecutor):
+            with where.futures() as tasks:
+                paths = write_datasets(spec, args.out, progress, executor=tasks)
+        else:
+            paths = write_datasets(spec, args.out, progress, jobs=args.jobs)
     finally:
         if progress is not None:
             progress.close()

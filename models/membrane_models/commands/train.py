@@ -16,6 +16,7 @@ from typing import Any
 
 from membrane_cli.arguments import UsageError
 from membrane_models.commands.exact import parse_assignments
+from membrane_models.executors import add_executor_arguments
 
 __all__ = ["add_evaluate", "add_export", "add_train", "train_command"]
 
@@ -72,6 +73,20 @@ def add_train(subparsers: argparse._SubParsersAction) -> None:
         help="log the error against the exact solution every N iterations (0: never)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--seeds",
+        help="a sweep: one run per seed (0,1,2 or 0-3), each in OUT/seed-N (OUT/sweep.json "
+        "lists their final losses)",
+    )
+    parser.add_argument(
+        "--sweep",
+        action="append",
+        default=[],
+        metavar="NAME=V1,V2",
+        help="a sweep over a problem parameter (repeatable: their product), each run in "
+        "OUT/NAME=V,seed-N",
+    )
+    add_executor_arguments(parser)
     parser.set_defaults(handler=_run_train)
 
 
@@ -96,6 +111,12 @@ def _run_train(args: argparse.Namespace) -> int:
         return run_koopman_train(args)
     if args.data is not None:
         raise UsageError(f"--data is for {KOOPMAN_MODEL} only")
+    if args.seeds is not None or args.sweep:
+        return _run_sweep(args)
+    if args.executor != "serial" or args.ray_address is not None or args.workers is not None:
+        raise UsageError(
+            "--executor, --ray-address and --workers are for sweeps (--seeds, --sweep)"
+        )
     import torch
 
     from membrane_models.learned.training import recipe, train
@@ -149,6 +170,40 @@ def _run_train(args: argparse.Namespace) -> int:
     print(f"trained {result.iterations} iterations in {result.wall_time:.1f} s: {terms}")
     print(f"checkpoint: {result.checkpoint}")
     return 0
+
+
+def _run_sweep(args: argparse.Namespace) -> int:
+    """Many runs (``train_sweep``): every seed of ``--seeds`` for every ``--sweep`` value."""
+    from membrane_models.commands.train_sweep import (
+        parse_seeds,
+        parse_sweep,
+        run_sweep,
+        sweep_specs,
+    )
+    from membrane_models.executors import executor_from_args
+
+    if args.resume or args.monitor_every:
+        raise UsageError("--resume and --monitor-every are for a single run, not a sweep")
+    if args.iterations is not None and args.iterations <= 0:
+        raise UsageError(f"--iterations must be > 0, got {args.iterations}")
+    if args.lbfgs_fraction is not None and not 0.0 <= args.lbfgs_fraction < 1.0:
+        raise UsageError(f"--lbfgs-fraction must be in [0, 1), got {args.lbfgs_fraction}")
+    seeds = parse_seeds(args.seeds) or [args.seed]
+    base = {
+        "problem": args.problem,
+        "arch": args.arch,
+        "iterations": args.iterations,
+        "lbfgs_fraction": args.lbfgs_fraction,
+        "sets": list(args.sets),
+        "out": str(args.out),
+    }
+    specs = sweep_specs(base, seeds, parse_sweep(args.sweep))
+    for spec in specs:
+        run_args = argparse.Namespace(
+            **{**vars(args), "seed": spec["seed"], "sets": spec["sets"], "out": Path(spec["out"])}
+        )
+        spec["command"] = train_command(run_args)
+    return run_sweep(specs, args.out, executor_from_args(args), progress=not args.no_progress)
 
 
 def _exact_monitor(config: Any) -> Any:

@@ -289,11 +289,16 @@ def _arrays(spec: DatasetSpec, split: str, columns: dict[str, list[Any]]) -> dic
 
 
 def write_datasets(
-    spec: DatasetSpec, out_dir: Path, progress: Progress | None = None, jobs: int = 1
+    spec: DatasetSpec,
+    out_dir: Path,
+    progress: Progress | None = None,
+    jobs: int = 1,
+    executor: Executor | None = None,
 ) -> dict[str, Path]:
     """Write OUT/train.npz, OUT/validation.npz and OUT/test.npz; returns their paths.
 
-    ``jobs`` > 1 computes trajectories in that many processes (the same bytes as one).
+    ``jobs`` > 1 computes trajectories in that many processes, or ``executor`` (Ray's,
+    ``executors.RayExecutor.futures``) where it sends them: the same bytes as one.
 
     Each file holds ``u`` and ``u_t`` shaped (trajectories, steps + 1, points), ``x``, ``t``,
     per trajectory ``family``, ``shape`` (JSON of what was drawn), ``nonlinearity``,
@@ -303,8 +308,7 @@ def write_datasets(
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     with ExitStack() as stack:
-        executor = None
-        if jobs > 1:
+        if executor is None and jobs > 1:
             executor = stack.enter_context(ProcessPoolExecutor(jobs))
         return _write_splits(spec, out_dir, progress, executor)
 

@@ -163,3 +163,29 @@ def test_progress_is_a_bar_on_a_terminal() -> None:
     progress.close()
     text = stream.getvalue()
     assert text.count("\r") == 2 and text.endswith("\n") and "4/4" in text
+
+
+@pytest.mark.slow
+def test_the_datasets_on_a_local_ray_are_the_same_bytes(tmp_path: Path) -> None:
+    """`membrane data ... --executor ray`: the trajectories as Ray tasks (a real local Ray of
+    2 workers, loopback only), the files' arrays equal to the serial run's."""
+    args = ["--train", "2", "--validation", "0", "--test", "1", "--steps", "10",
+            "--families", "square,noise", "--no-progress"]  # fmt: skip
+    assert main(["data", "koopman-string", "--out", str(tmp_path / "serial"), *args]) == 0
+    on_ray = ["--executor", "ray", "--workers", "2"]
+    assert main(["data", "koopman-string", "--out", str(tmp_path / "ray"), *args, *on_ray]) == 0
+    for split in ("train", "test"):
+        serial = _read(tmp_path / "serial" / f"{split}.npz")
+        remote = _read(tmp_path / "ray" / f"{split}.npz")
+        assert serial.keys() == remote.keys()
+        for key, value in serial.items():
+            np.testing.assert_array_equal(value, remote[key], err_msg=f"{split}: {key}")
+
+
+def test_jobs_and_ray_together_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = main(["data", "koopman-string", "--out", str(tmp_path), "--jobs", "2",
+                 "--executor", "ray"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and "--jobs is a local process pool" in err, err
