@@ -82,6 +82,11 @@ class SineBasis:
             edges[axis] = slice(0, None, max(lattice[axis] - 1, 1))
             interior[tuple(edges)] = False
         self._movable = interior.reshape(-1)
+        # The last step's inputs and their footprints: a probe held still, a load held (a
+        # display's `repeat`, a haptic loop between moves) gives the same ones every step.
+        self._last_prints: tuple[object, tuple[list[Footprint], list[Footprint | None]]] | None = (
+            None
+        )
         self._movable.setflags(write=False)
 
     @property
@@ -159,6 +164,24 @@ class SineBasis:
         budget: StepBudget,
         *,
         tool_points: bool = False,
+    ) -> tuple[list[Footprint], list[Footprint | None]]:
+        """The loads' and probes' footprints (None: a probe outside the domain), the step's
+        cost checked against ``budget`` first; the same inputs as the last call get its
+        footprints again (they are immutable) without building or pricing them twice."""
+        key = (tuple(loads), tuple(probes), budget, tool_points)
+        last = self._last_prints
+        if last is not None and last[0] == key:
+            return list(last[1][0]), list(last[1][1])
+        found = self._footprints(loads, probes, budget, tool_points)
+        self._last_prints = (key, found)
+        return list(found[0]), list(found[1])
+
+    def _footprints(
+        self,
+        loads: Sequence[Load],
+        probes: Sequence[Probe],
+        budget: StepBudget,
+        tool_points: bool,
     ) -> tuple[list[Footprint], list[Footprint | None]]:
         load_sizes = [self.footprint_size(ld, "load", i) for i, ld in enumerate(loads)]
         probe_sizes = [

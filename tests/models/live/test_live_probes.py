@@ -265,3 +265,33 @@ def test_a_tip_above_the_rest_surface_meets_tissue_that_rings_up_to_it() -> None
             assert reading.gap > 0.0 and reading.displacement < 1e-3
     assert highest > 1.5e-3  # the free tissue rings well past the tip
     assert touching > 10 and apart > 10
+
+
+def test_a_held_probes_footprints_are_built_once_and_step_the_same_bits() -> None:
+    """The basis keeps the last step's footprints: a probe held still gets the same ones (the
+    same arrays, not rebuilt), a moved one new ones, and the steps' bits do not depend on it
+    (against the same engine with the memo cleared before every step)."""
+    from membrane_models.live.cost import StepBudget, StepTooCostly
+
+    engine = ModalEngine(MEMBRANE, 20, 0.002)
+    basis = engine.basis
+    held, moved = Probe((0.5, 0.5), 0.01, 0.05), Probe((0.4, 0.5), 0.01, 0.05)
+    first = basis.footprints([], [held], engine.budget)[1][0]
+    again = basis.footprints([], [held], engine.budget)[1][0]
+    other = basis.footprints([], [moved], engine.budget)[1][0]
+    assert first is not None and again is not None and other is not None
+    assert again.spectra[0] is first.spectra[0] and other.spectra[0] is not first.spectra[0]
+    remembered, fresh = engine.start().state, engine.start().state
+    for k in range(40):
+        probes = [held if (k // 7) % 2 == 0 else moved]
+        a = engine.step(remembered, [], probes)
+        basis._last_prints = None  # as if never seen
+        b = engine.step(fresh, [], probes)
+        assert a.frame is not None and b.frame is not None
+        assert a.frame.tobytes() == b.frame.tobytes() and a.probes == b.probes
+        remembered, fresh = a.state, b.state
+    # The same inputs under a budget they break are priced, and refused, after passing another.
+    basis.footprints([], [held], engine.budget)
+    for probe in (held, moved):
+        with pytest.raises(StepTooCostly):
+            basis.footprints([], [probe], StepBudget(max_work=1.0))
