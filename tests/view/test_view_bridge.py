@@ -246,6 +246,7 @@ def test_a_press_with_a_rigid_tool_or_a_grasp_reaches_the_tissue(
     assert scene["tools"] == ["tip", "sphere", "cylinder", "grasp"]
 
 
+@pytest.mark.slow  # builds skin-disk's FEM tables (about 13 s)
 def test_the_scene_message_says_units_tools_and_a_physical_scenes_triangles(
     tmp_path: Any, monkeypatch: pytest.MonkeyPatch
 ) -> None:
