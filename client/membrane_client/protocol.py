@@ -81,6 +81,9 @@ MAX_TOKEN_CHARS = 64  # a live Session's re-send token (``token``)
 # Steps one ``step`` request takes (``repeat``): a display's push at 30 frames/s of a 1 kHz
 # scene, and no more, so that one request stalls the other sessions at most this many steps.
 MAX_REPEAT = 32
+# Steps one ``steps`` request takes in all (its items' repeats summed): what one request may hold
+# the server for while other peers wait.
+MAX_BATCH_STEPS = 256
 # An error reply's message: one line of at most this many characters (quoting at most
 # codec.PREVIEW_CHARS of any client value).
 MAX_ERROR_CHARS = 300
@@ -100,6 +103,7 @@ class Op(StrEnum):
     READ = "read"
     RESET = "reset"
     CLOSE = "close"
+    STEPS = "steps"  # several sessions' steps in one request (a client of many environments)
 
 
 class ErrorCode(StrEnum):
@@ -164,6 +168,7 @@ class Request:
     # step: how many steps to take under the same inputs (the frame and readings: the last's)
     repeat: int = 1
     initial: dict[str, Any] | None = None  # open: {displacement, velocity} arrays
+    steps: list[Any] | None = None  # steps: each item a step's map (its own session, k, token)
     token: str | None = None  # live ops: the Session object's own token (re-sends carry it)
 
     def to_wire(self) -> bytes:
@@ -226,7 +231,24 @@ class Request:
             raise RequestError(ErrorCode.BAD_REQUEST, reason)
         return cls(op, request_id, session)
 
+    @classmethod
+    def step_item(cls, item: Any, request_id: int, scene: str | None) -> Request:
+        """One item of a ``steps`` request, read as the ``step`` request it stands for (its
+        ``scene`` defaults to the batch's); raises RequestError as ``from_wire`` does."""
+        if type(item) is not dict:
+            raise RequestError(ErrorCode.BAD_REQUEST, f"a steps item is a map, got {preview(item)}")
+        session = item.get("session")
+        if not (type(session) is str and len(session) <= _SESSION):
+            reason = f"a steps item needs 'session', a string of at most {_SESSION} characters"
+            raise RequestError(ErrorCode.BAD_REQUEST, reason)
+        request = cls(Op.STEP, request_id, session)
+        request._read_fields({"scene": scene, **item})
+        return request
+
     def _read_fields(self, message: dict[str, Any]) -> None:
+        if self.op == Op.STEPS:
+            self._read_batch(message)
+            return
         if self.op not in _SCENE_OPS:  # other ops ignore every other field
             return
         self.scene = scene = message.get("scene")
@@ -286,6 +308,27 @@ class Request:
             reason = f"'repeat' must be an int in [1, {MAX_REPEAT}], got {preview(repeat)}"
             self._refuse(ErrorCode.BAD_REQUEST, reason)
 
+    def _read_batch(self, message: dict[str, Any]) -> None:
+        """``steps``: a list of step maps (each read when it is taken), their repeats within
+        ``MAX_BATCH_STEPS`` in all."""
+        self.scene = scene = message.get("scene")
+        if scene is not None and type(scene) is not str:
+            self._refuse(ErrorCode.BAD_REQUEST, f"'scene' must be a string, got {preview(scene)}")
+        items = message.get("steps")
+        if type(items) is not list or not 1 <= len(items) <= MAX_BATCH_STEPS:
+            reason = f"'steps' must be a list of 1 to {MAX_BATCH_STEPS} step maps"
+            self._refuse(ErrorCode.BAD_REQUEST, reason)
+        total = sum(
+            item.get("repeat", 1)
+            if type(item) is dict and type(item.get("repeat", 1)) is int
+            else 1
+            for item in items
+        )
+        if total > MAX_BATCH_STEPS:
+            reason = f"a steps request takes at most {MAX_BATCH_STEPS} steps in all, got {total}"
+            self._refuse(ErrorCode.BAD_REQUEST, reason)
+        self.steps = items
+
     def _flag(self, message: dict[str, Any], key: str) -> bool:
         value = message.get(key, False)
         if type(value) is not bool:
@@ -301,7 +344,7 @@ class Request:
 _OPS = frozenset(Op)
 # The fields ``Request.to_wire`` sends when set, in order; a step's item lists and their bounds.
 _SENT_FIELDS = (
-    "session", "scene", "t", "k", "loads", "probes", "grasps", "tools", "initial", "token"
+    "session", "scene", "t", "k", "loads", "probes", "grasps", "tools", "initial", "token", "steps"
 )  # fmt: skip
 _STEP_ITEMS = (
     ("loads", MAX_LOADS),

@@ -20,13 +20,15 @@ from __future__ import annotations
 
 import secrets
 import uuid
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from membrane_client.errors import ProtocolError, StepLost, Timeout
+from membrane_client.codec import MAX_REPLY_BYTES, decode
+from membrane_client.errors import MembraneError, ProtocolError, ServerError, StepLost, Timeout
 from membrane_client.frame import SceneInfo
 from membrane_client.live_schema import (
     Grasp,
@@ -56,6 +58,7 @@ __all__ = [
     "Session",
     "Tool",
     "ToolReading",
+    "step_many",
 ]
 
 
@@ -145,17 +148,10 @@ class Session:
             StepLost: no reply on any retry; ``applied`` says whether the server took the step
                 (``k`` follows the server's count either way, so the next step is in step).
         """
-        wire_loads = [_wire(item) for item in loads]
-        wire_probes = [_wire(item) for item in probes]
-        fields = dict(loads=wire_loads, probes=wire_probes, frame=frame, strict=strict)
-        if grasps:
-            fields["grasps"] = [_wire(item) for item in grasps]
-        if tools:
-            fields["tools"] = [_wire(item) for item in tools]
-        if lookahead:
-            fields["lookahead"] = True
-        if repeat != 1:
-            fields["repeat"] = repeat
+        fields = _step_fields(
+            loads, probes, grasps, tools, frame=frame, strict=strict, lookahead=lookahead,
+            repeat=repeat,
+        )  # fmt: skip
         try:
             reply = self._request(Op.STEP, k=self.k, dtype=dtype, **fields)
         except Timeout as lost:
@@ -209,6 +205,77 @@ class Session:
         return self.client.request(
             op, scene=self.scene, session=self.id, token=self.token, **fields
         )
+
+
+def step_many(
+    client: Client, items: Sequence[tuple[Session, Mapping[str, Any]]]
+) -> list[LiveFrame | ServerError]:
+    """Several sessions' steps in one request (the ``steps`` op: one receive, decode and reply
+    on the server for all of them, a client of many environments): each item is a Session of
+    this client and its step's keyword arguments as ``Session.step`` takes them (``loads``,
+    ``probes``, ``grasps``, ``tools``, ``frame``, ``repeat``, ``dtype``, ``strict``). Every
+    session's step is taken exactly once, as by ``step``; the results come in the items' order,
+    a ``ServerError`` in place of a step the server refused (the others are taken).
+
+    Raises:
+        Timeout: no reply on any retry (re-sent, every step already taken is answered from the
+            server's store, not taken again); MembraneError: a session of another client.
+    """
+    wire = []
+    for session, options in items:
+        if session.client is not client:
+            raise MembraneError(f"session {session.id} belongs to another client")
+        kwargs = dict(options)
+        dtype = kwargs.pop("dtype", "<f4")
+        fields = _step_fields(
+            kwargs.pop("loads", ()), kwargs.pop("probes", ()), kwargs.pop("grasps", ()),
+            kwargs.pop("tools", ()), **kwargs,
+        )  # fmt: skip
+        item = {"session": session.id, "token": session.token, "k": session.k, **fields}
+        if session.scene is not None:
+            item["scene"] = session.scene
+        wire.append(item if dtype == "<f4" else {**item, "dtype": dtype})
+    reply = client.request(Op.STEPS, steps=wire)
+    results: list[LiveFrame | ServerError] = []
+    for (session, _), data in zip(items, reply["steps"], strict=True):
+        message = decode(data, MAX_REPLY_BYTES)
+        if not message.get("ok"):
+            error = message.get("error") or {}
+            results.append(ServerError(str(error.get("code")), str(error.get("message"))))
+            continue
+        frame = LiveFrame.from_reply(message, session.info)
+        session.k = frame.k
+        results.append(frame)
+    return results
+
+
+def _step_fields(
+    loads: Any,
+    probes: Any,
+    grasps: Any,
+    tools: Any,
+    *,
+    frame: bool = True,
+    strict: bool = False,
+    lookahead: bool = False,
+    repeat: int = 1,
+) -> dict[str, Any]:
+    """A step request's fields from ``Session.step``'s arguments."""
+    fields: dict[str, Any] = dict(
+        loads=[_wire(item) for item in loads],
+        probes=[_wire(item) for item in probes],
+        frame=frame,
+        strict=strict,
+    )
+    if grasps:
+        fields["grasps"] = [_wire(item) for item in grasps]
+    if tools:
+        fields["tools"] = [_wire(item) for item in tools]
+    if lookahead:
+        fields["lookahead"] = True
+    if repeat != 1:
+        fields["repeat"] = repeat
+    return fields
 
 
 def _wire(item: Any) -> Any:

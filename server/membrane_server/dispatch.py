@@ -234,7 +234,7 @@ def find_scene(
 
 
 _Handler = Callable[[Dispatcher, Request], "dict[str, Any] | Prepared | bytes"]
-_LiveHandler = Callable[[LiveOps, Request, str], bytes]
+_LiveHandler = Callable[[LiveOps, Request, str], bytes | dict[str, Any]]
 # Plain functions, not bound methods: a table of a dispatcher's own bound methods would be a
 # reference cycle that keeps a reloaded dispatcher (and its scenes) until a full collection.
 _OPS: dict[str, _Handler] = {
@@ -250,4 +250,5 @@ _LIVE_OPS: dict[str, _LiveHandler] = {
     Op.READ: LiveOps.read,
     Op.RESET: LiveOps.reset,
     Op.CLOSE: LiveOps.close,
+    Op.STEPS: LiveOps.steps,
 }

@@ -41,6 +41,7 @@ from membrane_client.protocol import (
     Request,
     RequestError,
     encode,
+    error_reply,
     ok_reply,
     preview,
 )
@@ -242,6 +243,21 @@ class LiveOps:
         reply = encode(ok_reply(request.id, **fields))
         session.last_step = Sent(request.token, request.id, reply)
         return reply
+
+    def steps(self, request: Request, peer: str = "") -> dict[str, Any]:
+        """Several sessions' steps in one request (``steps``, a client of many environments):
+        each item is the ``step`` it stands for (its own session, k and token: taken exactly
+        once, a re-send answered from its store), answered in order with that step's reply
+        bytes, an error reply where the item was refused; a refused item stops no other."""
+        assert request.steps is not None
+        replies: list[bytes] = []
+        for index, item in enumerate(request.steps):
+            try:
+                replies.append(self.step(Request.step_item(item, request.id, request.scene), peer))
+            except RequestError as exc:
+                reply = error_reply(request.id, exc.code, f"steps item {index}: {exc}")
+                replies.append(encode(reply))
+        return {"steps": replies}
 
     def read(self, request: Request, peer: str = "") -> bytes:
         session = self._session(request, peer)
