@@ -17,31 +17,20 @@ import argparse
 import json
 import multiprocessing
 import re
-import socket
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "tests" / "helpers"))  # the tests' port finder
+from serve_process import free_port_run
 
 from membrane_client import Client
 from membrane_client.workers import WorkerClient
 
 MEMBRANE = [sys.executable, "-m", "membrane_cli"]
-
-
-def _free_base(count: int) -> int:
-    while True:
-        with socket.socket() as probe:
-            probe.bind(("127.0.0.1", 0))
-            base = int(probe.getsockname()[1])
-        try:
-            for port in range(base, base + count):
-                with socket.socket() as s:
-                    s.bind(("127.0.0.1", port))
-        except OSError:
-            continue
-        return base
 
 
 def _stepper(
@@ -81,7 +70,7 @@ def _paced(address: str, seconds: float) -> dict[str, float]:
 
 
 def measure(workers: int, clients: int, sessions: int, seconds: float) -> dict[str, object]:
-    base = _free_base(workers)
+    base = free_port_run(workers)
     serve = subprocess.Popen(
         [*MEMBRANE, "serve", "--scene", "membrane-live", "--workers", str(workers),
          "--bind", f"tcp://127.0.0.1:{base}", "--max-sessions", "1000",

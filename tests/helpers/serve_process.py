@@ -4,13 +4,14 @@ the pipe fill: for tests that stop, kill or signal the server itself."""
 from __future__ import annotations
 
 import queue
+import socket
 import subprocess
 import sys
 import threading
 import time
 from typing import IO
 
-__all__ = ["LINE_TIMEOUT_S", "MEMBRANE", "LineReader", "ServeProcess"]
+__all__ = ["LINE_TIMEOUT_S", "MEMBRANE", "LineReader", "ServeProcess", "free_port_run"]
 
 MEMBRANE = [sys.executable, "-m", "membrane_cli"]
 LINE_TIMEOUT_S = 60.0  # generous: a cold `membrane serve` imports scipy and onnxruntime
@@ -72,3 +73,21 @@ class ServeProcess:
         if self.process.poll() is None:
             self.process.kill()
         self.process.wait(10)
+
+
+def free_port_run(count: int) -> int:
+    """A loopback port with the ``count - 1`` after it free now (``serve --workers``)."""
+    for _ in range(50):
+        with socket.socket() as probe:
+            probe.bind(("127.0.0.1", 0))
+            base = int(probe.getsockname()[1])
+        if base + count > 65535:
+            continue
+        try:
+            for port in range(base, base + count):
+                with socket.socket() as taken:
+                    taken.bind(("127.0.0.1", port))
+        except OSError:
+            continue
+        return base
+    raise AssertionError("no free run of ports")

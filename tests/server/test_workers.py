@@ -9,14 +9,13 @@ import contextlib
 import os
 import re
 import signal
-import socket
 import subprocess
 from collections import Counter
 from collections.abc import Iterator
 
 import numpy as np
 import pytest
-from serve_process import MEMBRANE, LineReader
+from serve_process import MEMBRANE, LineReader, free_port_run
 
 from membrane_client import Client, ServerError
 from membrane_client.protocol import ErrorCode
@@ -53,29 +52,11 @@ def test_worker_endpoints_need_a_fixed_tcp_port() -> None:
             worker_endpoints(bad, 3)
 
 
-def _free_ports(count: int) -> int:
-    """A port with the ``count - 1`` after it free on loopback (now)."""
-    for _ in range(50):
-        with socket.socket() as probe:
-            probe.bind(("127.0.0.1", 0))
-            base = probe.getsockname()[1]
-        if base + count > 65535:
-            continue
-        try:
-            for port in range(base, base + count):
-                with socket.socket() as s:
-                    s.bind(("127.0.0.1", port))
-        except OSError:
-            continue
-        return base
-    raise AssertionError("no free run of ports")
-
-
 class Workers:
     """`membrane serve --workers 3` in a subprocess; ``pids`` per endpoint once they listen."""
 
     def __init__(self, count: int) -> None:
-        base = _free_ports(count)
+        base = free_port_run(count)
         self.process = subprocess.Popen(
             [*MEMBRANE, "serve", "--workers", str(count), "--bind", f"tcp://127.0.0.1:{base}",
              "--scene", "membrane-live", "--scene", "membrane"],

@@ -37,6 +37,18 @@ class Box {
   }
 }
 
+// What the three Canvas renderers share: the pointer and the labels through their Box.
+class BoxRenderer {
+  toScreen(x, y) { return this.box.toScreen(this.canvas, x, y); }
+
+  pick(u, v) { return this.box.pick(this.canvas, u, v); }
+
+  scaleBarScreen(length) {
+    const { canvas } = this, y = canvas.height - 16, x0 = 16;
+    return [[x0, y], [x0 + this.box.pixels(canvas, length), y]];
+  }
+}
+
 // The tool seen from above: its outline in its radius; a grasp as a cross ("held").
 function toolOutline(ctx, tool, cx, cy, pr) {
   ctx.strokeStyle = TOOL;
@@ -52,8 +64,9 @@ function toolOutline(ctx, tool, cx, cy, pr) {
   }
 }
 
-export class HeatMap {
+export class HeatMap extends BoxRenderer {
   constructor(canvas, scene) {
+    super();
     this.canvas = canvas;
     this.ctx = canvas.getContext("2d");
     [this.nx, this.ny] = scene.shape;
@@ -94,20 +107,12 @@ export class HeatMap {
       toolOutline(ctx, view.tool, cx, cy, this.box.pixels(canvas, view.tool.radius));
     }
   }
-
-  toScreen(x, y) { return this.box.toScreen(this.canvas, x, y); }
-
-  pick(u, v) { return this.box.pick(this.canvas, u, v); }
-
-  scaleBarScreen(length) {
-    const { canvas } = this, y = canvas.height - 16, x0 = 16;
-    return [[x0, y], [x0 + this.box.pixels(canvas, length), y]];
-  }
 }
 
-export class Rope {
+export class Rope extends BoxRenderer {
   // `xs`: each point's x in scene units (a point list's own), or null for a grid.
   constructor(canvas, scene, xs = null) {
+    super();
     this.canvas = canvas;
     this.ctx = canvas.getContext("2d");
     this.n = scene.shape[0];
@@ -148,18 +153,12 @@ export class Rope {
   }
 
   toScreen(x) { return this.box.toScreen(this.canvas, x, null); }
-
-  pick(u, v) { return this.box.pick(this.canvas, u, v); }
-
-  scaleBarScreen(length) {
-    const { canvas } = this, y = canvas.height - 16, x0 = 16;
-    return [[x0, y], [x0 + this.box.pixels(canvas, length), y]];
-  }
 }
 
 // A membrane's point list: each point a disc at its (x, y), coloured by its displacement.
-export class Scatter {
+export class Scatter extends BoxRenderer {
   constructor(canvas, scene) {
+    super();
     this.canvas = canvas;
     this.ctx = canvas.getContext("2d");
     this.points = scene.points;
@@ -184,15 +183,6 @@ export class Scatter {
       const [cx, cy] = this.toScreen(...view.tool.at);
       toolOutline(ctx, view.tool, cx, cy, this.box.pixels(canvas, view.tool.radius));
     }
-  }
-
-  toScreen(x, y) { return this.box.toScreen(this.canvas, x, y); }
-
-  pick(u, v) { return this.box.pick(this.canvas, u, v); }
-
-  scaleBarScreen(length) {
-    const { canvas } = this, y = canvas.height - 16, x0 = 16;
-    return [[x0, y], [x0 + this.box.pixels(canvas, length), y]];
   }
 }
 
