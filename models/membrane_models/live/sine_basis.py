@@ -28,6 +28,7 @@ from membrane_models.live.footprint import (
     gaussian_reach,
     make_footprint,
 )
+from membrane_models.live.footprint_memo import FootprintMemo
 from membrane_models.live.inputs import inside_domain
 from membrane_models.live.interface import Load, Probe
 from membrane_models.live.modes import ModeSet
@@ -82,11 +83,10 @@ class SineBasis:
             edges[axis] = slice(0, None, max(lattice[axis] - 1, 1))
             interior[tuple(edges)] = False
         self._movable = interior.reshape(-1)
-        # The last step's inputs and their footprints: a probe held still, a load held (a
-        # display's `repeat`, a haptic loop between moves) gives the same ones every step.
-        self._last_prints: tuple[object, tuple[list[Footprint], list[Footprint | None]]] | None = (
-            None
-        )
+        # Recent steps' inputs and their footprints (a held probe, a held load, many sessions'
+        # own): the same inputs get the same ones again (``footprint_memo``).
+        self.memo: FootprintMemo[tuple[list[Footprint], list[Footprint | None]]] = FootprintMemo()
+        self._last: tuple[object, tuple[list[Footprint], list[Footprint | None]]] | None = None
         self._movable.setflags(write=False)
 
     @property
@@ -166,14 +166,18 @@ class SineBasis:
         tool_points: bool = False,
     ) -> tuple[list[Footprint], list[Footprint | None]]:
         """The loads' and probes' footprints (None: a probe outside the domain), the step's
-        cost checked against ``budget`` first; the same inputs as the last call get its
+        cost checked against ``budget`` first; inputs seen in a recent step get their
         footprints again (they are immutable) without building or pricing them twice."""
         key = (tuple(loads), tuple(probes), budget, tool_points)
-        last = self._last_prints
-        if last is not None and last[0] == key:
+        last = self._last
+        if last is not None and last[0] == key:  # the usual case: no hashing, no lock
             return list(last[1][0]), list(last[1][1])
-        found = self._footprints(loads, probes, budget, tool_points)
-        self._last_prints = (key, found)
+        found = self.memo.get(key)
+        if found is None:
+            found = self._footprints(loads, probes, budget, tool_points)
+            prints = [fp for fp in (*found[0], *found[1]) if fp is not None]
+            self.memo.put(key, found, sum(a.nbytes for fp in prints for a in fp.spectra))
+        self._last = (key, found)
         return list(found[0]), list(found[1])
 
     def _footprints(

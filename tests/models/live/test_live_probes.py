@@ -268,7 +268,7 @@ def test_a_tip_above_the_rest_surface_meets_tissue_that_rings_up_to_it() -> None
 
 
 def test_a_held_probes_footprints_are_built_once_and_step_the_same_bits() -> None:
-    """The basis keeps the last step's footprints: a probe held still gets the same ones (the
+    """The basis keeps recent steps' footprints: a probe held still gets the same ones (the
     same arrays, not rebuilt), a moved one new ones, and the steps' bits do not depend on it
     (against the same engine with the memo cleared before every step)."""
     from membrane_models.live.cost import StepBudget, StepTooCostly
@@ -285,7 +285,8 @@ def test_a_held_probes_footprints_are_built_once_and_step_the_same_bits() -> Non
     for k in range(40):
         probes = [held if (k // 7) % 2 == 0 else moved]
         a = engine.step(remembered, [], probes)
-        basis._last_prints = None  # as if never seen
+        basis.memo.clear()  # as if never seen
+        basis._last = None
         b = engine.step(fresh, [], probes)
         assert a.frame is not None and b.frame is not None
         assert a.frame.tobytes() == b.frame.tobytes() and a.probes == b.probes
@@ -295,3 +296,26 @@ def test_a_held_probes_footprints_are_built_once_and_step_the_same_bits() -> Non
     for probe in (held, moved):
         with pytest.raises(StepTooCostly):
             basis.footprints([], [probe], StepBudget(max_work=1.0))
+
+
+def test_the_footprint_memo_keeps_many_sessions_inputs_within_its_bounds() -> None:
+    """64 sessions' own probes stay remembered together (each gets its same footprints back);
+    past the entry bound the least recently used go first, and the bytes stay bounded."""
+    from membrane_models.live.footprint_memo import FootprintMemo
+
+    engine = ModalEngine(MEMBRANE, 20, 0.002)
+    basis = engine.basis
+    probes = [Probe((0.1 + 0.0125 * i, 0.5), 0.01, 0.05) for i in range(64)]
+    first = [basis.footprints([], [p], engine.budget)[1][0] for p in probes]
+    again = [basis.footprints([], [p], engine.budget)[1][0] for p in probes]
+    assert all(a is not None and b is not None and a.spectra[0] is b.spectra[0]
+               for a, b in zip(first, again, strict=True))  # fmt: skip
+    small: FootprintMemo[str] = FootprintMemo(max_entries=3, max_bytes=100)
+    for key in "abcd":
+        small.put(key, key.upper(), 10)
+    assert len(small) == 3 and small.get("a") is None and small.get("d") == "D"
+    small.put("big", "B", 60)  # over a quarter of the bytes: not kept, nothing pushed out
+    assert small.get("big") is None and len(small) == 3
+    for key in "efgh":
+        small.put(key, key, 25)
+    assert small._bytes <= 100
