@@ -33,6 +33,7 @@ from membrane_client import Client
 from membrane_client.errors import ProtocolError
 from membrane_client.protocol import (
     ARRAY_DTYPES,
+    MAX_BATCH_STEPS,
     MAX_REQUEST_BYTES,
     MAX_SESSION_CHARS,
     PROTOCOL_VERSION,
@@ -198,6 +199,8 @@ def expected_errors(body: list[bytes], scenes: dict[str, ServedScene]) -> tuple[
             broken |= _query_errors(message, scenes)
     elif op in LIVE_OPS:
         broken |= _live_errors(op, message, scenes)
+    elif op == Op.STEPS:
+        broken |= _steps_errors(message)
     return broken, request_id
 
 
@@ -215,6 +218,22 @@ def _live_errors(op: str, message: dict[str, Any], scenes: dict[str, ServedScene
     if op == Op.STEP:
         return {ErrorCode.BAD_REQUEST}  # the fuzzer sends no 'k'
     return set() if op == Op.CLOSE else {ErrorCode.UNKNOWN_SESSION}
+
+
+def _steps_errors(message: dict[str, Any]) -> set[str]:
+    """A ``steps`` batch (PROTOCOL.md): refused whole when its scene is not a name or its
+    ``steps`` not a list of 1 to MAX_BATCH_STEPS items whose repeats stay within that bound;
+    otherwise answered ok, each item's own refusal inside it."""
+    items = message.get("steps")
+    if not isinstance(message.get("scene"), str | None):
+        return {ErrorCode.BAD_REQUEST}
+    if type(items) is not list or not 1 <= len(items) <= MAX_BATCH_STEPS:
+        return {ErrorCode.BAD_REQUEST}
+    repeats = [
+        item.get("repeat", 1) if type(item) is dict and type(item.get("repeat", 1)) is int else 1
+        for item in items
+    ]
+    return {ErrorCode.BAD_REQUEST} if sum(repeats) > MAX_BATCH_STEPS else set()
 
 
 def _scene_errors(message: dict[str, Any], scenes: dict[str, ServedScene]) -> set[str]:
@@ -274,6 +293,8 @@ def check_reply(body: list[bytes], reply_bytes: bytes, scenes: dict[str, ServedS
         assert sorted(reply["scenes"]) == sorted(scenes)
     elif message["op"] == Op.CLOSE:
         assert reply["closed"] is False
+    elif message["op"] == Op.STEPS:
+        assert len(reply["steps"]) == len(message["steps"])
     return "ok"
 
 
