@@ -251,9 +251,7 @@ class Request:
             return
         if self.op not in _SCENE_OPS:  # other ops ignore every other field
             return
-        self.scene = scene = message.get("scene")
-        if scene is not None and type(scene) is not str:
-            self._refuse(ErrorCode.BAD_REQUEST, f"'scene' must be a string, got {preview(scene)}")
+        self._read_scene(message)
         if self.op in _LIVE_OPS:
             self._read_live_fields(message)
         if self.op in _FRAME_OPS:
@@ -273,6 +271,11 @@ class Request:
         self.t = float(t)
         if not math.isfinite(self.t):
             self._refuse(ErrorCode.INVALID_TIME, f"'t' must be finite, got {self.t}")
+
+    def _read_scene(self, message: dict[str, Any]) -> None:
+        self.scene = scene = message.get("scene")
+        if scene is not None and type(scene) is not str:
+            self._refuse(ErrorCode.BAD_REQUEST, f"'scene' must be a string, got {preview(scene)}")
 
     def _read_live_fields(self, message: dict[str, Any]) -> None:
         if self.session is None:
@@ -311,9 +314,7 @@ class Request:
     def _read_batch(self, message: dict[str, Any]) -> None:
         """``steps``: a list of step maps (each read when it is taken), their repeats within
         ``MAX_BATCH_STEPS`` in all."""
-        self.scene = scene = message.get("scene")
-        if scene is not None and type(scene) is not str:
-            self._refuse(ErrorCode.BAD_REQUEST, f"'scene' must be a string, got {preview(scene)}")
+        self._read_scene(message)
         items = message.get("steps")
         if type(items) is not list or not 1 <= len(items) <= MAX_BATCH_STEPS:
             reason = f"'steps' must be a list of 1 to {MAX_BATCH_STEPS} step maps"

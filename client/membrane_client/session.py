@@ -27,7 +27,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from membrane_client.codec import MAX_REPLY_BYTES, decode
 from membrane_client.errors import MembraneError, ProtocolError, ServerError, StepLost, Timeout
 from membrane_client.frame import SceneInfo
 from membrane_client.live_schema import (
@@ -43,7 +42,7 @@ from membrane_client.live_schema import (
     Tool,
     ToolReading,
 )
-from membrane_client.protocol import Op
+from membrane_client.protocol import Op, read_reply
 
 if TYPE_CHECKING:
     from membrane_client.client import Client
@@ -238,10 +237,10 @@ def step_many(
     reply = client.request(Op.STEPS, steps=wire)
     results: list[LiveFrame | ServerError] = []
     for (session, _), data in zip(items, reply["steps"], strict=True):
-        message = decode(data, MAX_REPLY_BYTES)
-        if not message.get("ok"):
-            error = message.get("error") or {}
-            results.append(ServerError(str(error.get("code")), str(error.get("message"))))
+        try:  # each item's reply is a whole reply to this request, checked as one
+            message = read_reply(data, reply["id"])
+        except ServerError as refused:
+            results.append(refused)
             continue
         frame = LiveFrame.from_reply(message, session.info)
         session.k = frame.k

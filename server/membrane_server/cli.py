@@ -130,11 +130,18 @@ def add_serve(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
     parser.add_argument(
         "--worker-list",
         metavar="ADDR,ADDR,...",
+        type=_endpoint_list,
+        default=(),
         help="every worker's endpoint as clients reach it, which hello lists (default with "
         "--workers: the workers' own; in a container or across machines, the names clients "
         "use, e.g. one per pod of a StatefulSet)",
     )
     parser.set_defaults(handler=_run_serve)
+
+
+def _endpoint_list(text: str) -> tuple[str, ...]:
+    """``--worker-list``'s endpoints, in order (each checked as --bind is, before serving)."""
+    return tuple(text.split(","))
 
 
 def _worker_count(text: str) -> int:
@@ -157,7 +164,7 @@ def _run_serve(args: argparse.Namespace) -> int:
     if (args.curve_secret is None) != (args.curve_clients is None):
         raise UsageError("--curve-secret and --curve-clients go together")
     _check_endpoint(args.bind)  # before the CurveZMQ warning, which would misread a bad one
-    for endpoint in (args.worker_list or "").split(",") if args.worker_list else ():
+    for endpoint in args.worker_list:
         _check_endpoint(endpoint, "--worker-list")
     _check_curve_keys(args)  # before detaching, so that a bad key is reported here
     _make_paths_absolute(args)
@@ -177,7 +184,7 @@ def _serve_workers(scenes: list[str], args: argparse.Namespace) -> int:
     if args.daemon:
         raise UsageError("--workers runs in the foreground: start it under systemd or a pod")
     endpoints = worker_endpoints(args.bind, args.workers)
-    advertised = args.worker_list.split(",") if args.worker_list else endpoints
+    advertised = list(args.worker_list) or endpoints
     if len(advertised) != len(endpoints):
         raise UsageError(
             f"--worker-list names {len(advertised)} workers, --workers {len(endpoints)}"
@@ -277,7 +284,7 @@ def _serve(
         server = Server(
             scenes,
             bind=args.bind,
-            workers=args.worker_list.split(",") if args.worker_list else (),
+            workers=args.worker_list,
             threads=args.threads,
             context=context,
             socket_options=options,
