@@ -181,8 +181,6 @@ def _serve_workers(scenes: list[str], args: argparse.Namespace) -> int:
     from membrane_cli.arguments import UsageError
     from membrane_server.workers import run_workers, worker_endpoints
 
-    if args.daemon:
-        raise UsageError("--workers runs in the foreground: start it under systemd or a pod")
     endpoints = worker_endpoints(args.bind, args.workers)
     advertised = list(args.worker_list) or endpoints
     if len(advertised) != len(endpoints):
@@ -200,6 +198,10 @@ def _serve_workers(scenes: list[str], args: argparse.Namespace) -> int:
     ):  # fmt: skip
         if value is not None:
             argv += [flag, str(value)]
+    if args.daemon:  # the daemon is the workers' parent: SIGTERM to its pid stops them all
+        return _detached(
+            scenes, args, lambda ready: run_workers(argv, endpoints, advertised, ready)
+        )
     return run_workers(argv, endpoints, advertised)
 
 
@@ -359,6 +361,13 @@ def _secure(
 
 
 def _serve_detached(scenes: list[str], args: argparse.Namespace) -> int:
+    return _detached(scenes, args, lambda notify: _serve(scenes, args, notify))
+
+
+def _detached(
+    scenes: list[str], args: argparse.Namespace, main: Callable[[Callable[[str], None]], int]
+) -> int:
+    """``main(notify_ready)`` as a daemon (``daemon.run_detached``), once the scenes load."""
     from membrane_cli.arguments import UsageError
     from membrane_server.daemon import AlreadyRunning, run_detached
     from membrane_server.scene import load_scene
@@ -366,11 +375,7 @@ def _serve_detached(scenes: list[str], args: argparse.Namespace) -> int:
     for scene in scenes:  # scene files are checked here, where the user can see the error
         load_scene(scene)
     try:
-        code = run_detached(
-            lambda notify: _serve(scenes, args, notify),
-            pidfile=args.pidfile,
-            logfile=args.logfile,
-        )
+        code = run_detached(main, pidfile=args.pidfile, logfile=args.logfile)
     except AlreadyRunning as exc:
         raise UsageError(str(exc)) from None
     if code == 0:

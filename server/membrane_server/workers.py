@@ -18,7 +18,7 @@ import signal
 import subprocess
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from types import FrameType
 
 from membrane_errors import UserError
@@ -45,12 +45,16 @@ def worker_endpoints(bind: str, count: int) -> list[str]:
 
 
 def run_workers(
-    serve_argv: Sequence[str], endpoints: Sequence[str], advertised: Sequence[str]
+    serve_argv: Sequence[str],
+    endpoints: Sequence[str],
+    advertised: Sequence[str],
+    notify_ready: Callable[[str], None] | None = None,
 ) -> int:
     """Start one `membrane serve` per endpoint (``serve_argv``: its options but ``--bind``),
     each told the ``advertised`` list (what clients reach them by, for ``hello``); print one
-    line once all listen, and wait for them. Exit code 0 when they stopped on a signal, 1 when
-    one failed to start."""
+    line once all listen (and call ``notify_ready`` with the endpoints: a daemon's launcher
+    returns then), and wait for them. Exit code 0 when they stopped on a signal, 1 when one
+    failed to start."""
     listed = ",".join(advertised)
     workers = [_start(serve_argv, endpoint, listed) for endpoint in endpoints]
     stopping = threading.Event()
@@ -70,6 +74,8 @@ def run_workers(
         return 1
     where = ", ".join(f"{e} (pid {w.pid})" for e, w in zip(endpoints, workers, strict=True))
     print(f"membrane serve: {len(workers)} workers listening on {where}", flush=True)
+    if notify_ready is not None:
+        notify_ready(",".join(endpoints))
     for worker, endpoint in zip(workers, endpoints, strict=True):
         threading.Thread(target=_relay, args=(worker,), daemon=True).start()
         threading.Thread(target=_watch, args=(worker, endpoint, stopping), daemon=True).start()

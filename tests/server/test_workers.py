@@ -10,8 +10,10 @@ import os
 import re
 import signal
 import subprocess
+import time
 from collections import Counter
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -165,7 +167,6 @@ def test_reopen_opens_a_lost_session_on_its_new_owner(workers: Workers) -> None:
         (["--workers", "2", "--bind", "tcp://127.0.0.1:7000", "--worker-list", "tcp://a:1"],
          "--worker-list names 1 workers, --workers 2"),
         (["--worker-list", "nope"], "--worker-list needs a ZeroMQ endpoint"),
-        (["--workers", "2", "--bind", "tcp://127.0.0.1:7000", "--daemon"], "foreground"),
     ],
 )  # fmt: skip
 def test_bad_worker_options_are_one_line_and_exit_2(
@@ -201,3 +202,46 @@ def test_hello_lists_the_workers_a_server_is_told_of() -> None:
             assert client.hello().workers == () and "workers" not in client.request("hello")
     finally:
         alone.stop()
+
+
+@pytest.mark.slow
+def test_workers_run_as_one_daemon_that_sigterm_stops_whole(tmp_path: Path) -> None:
+    pidfile, logfile = tmp_path / "membrane.pid", tmp_path / "membrane.log"
+    base = free_port_run(2)
+    endpoints = worker_endpoints(f"tcp://127.0.0.1:{base}", 2)
+    started = subprocess.run(
+        [*MEMBRANE, "serve", "--workers", "2", "--bind", endpoints[0], "--daemon",
+         "--pidfile", str(pidfile), "--logfile", str(logfile), "--scene", "membrane"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert started.returncode == 0, started.stderr
+    pid = int(pidfile.read_text())
+    log = ""
+    try:
+        for endpoint in endpoints:  # ready when the launcher returned: both answer
+            with Client(endpoint, timeout=5.0) as client:
+                assert client.hello().workers == tuple(endpoints)
+        log = logfile.read_text()
+        pids = [int(p) for p in re.findall(r"\(pid (\d+)\)", log)]
+        assert len(pids) == 2 and pid not in pids, log
+        os.kill(pid, signal.SIGTERM)
+        for child in [pid, *pids]:
+            assert _gone(child), f"pid {child} still runs after SIGTERM to the daemon"
+        assert not pidfile.exists()
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+        for child in re.findall(r"\(pid (\d+)\)", log):
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(int(child), signal.SIGKILL)
+
+
+def _gone(pid: int, timeout: float = 20.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        time.sleep(0.05)
+    return False
