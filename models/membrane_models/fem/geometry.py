@@ -282,15 +282,40 @@ def disk(radius: float, size: float, center: tuple[float, float] = (0.0, 0.0)) -
         refinements += 1
 
 
-def ellipse(a: float, b: float, size: float, center: tuple[float, float] = (0.0, 0.0)) -> Domain:
+def ellipse(
+    a: float,
+    b: float,
+    size: float,
+    center: tuple[float, float] = (0.0, 0.0),
+    *,
+    rim_size: float | None = None,
+    rim_width: float | None = None,
+) -> Domain:
     """An ellipse with semi-axes ``a`` (along x) and ``b`` (m), meshed by gmsh; part "rim", its
-    exact ``Ellipse``. Needs the ``mesh`` extra."""
+    exact ``Ellipse``. Needs the ``mesh`` extra.
+
+    ``rim_size`` and ``rim_width`` (m, together): edges of ``rim_size`` within ``rim_width`` of
+    the rim, growing to ``size`` over as much again: a clamped edge's boundary layer under large
+    deflection, resolved without refining the whole plate."""
     from membrane_models.fem.gmsh_mesher import mesh_ellipse
 
     _positive(a=a, b=b, size=size)
     _estimate(math.pi * a * b, size)
+    rim = None
+    if rim_size is not None or rim_width is not None:
+        if rim_size is None or rim_width is None:
+            raise InvalidGeometry("rim_size and rim_width go together")
+        _positive(rim_size=rim_size, rim_width=rim_width)
+        if rim_size > size or 2.0 * rim_width >= min(a, b):
+            raise InvalidGeometry(
+                f"a graded rim needs rim_size <= size ({rim_size:g} > {size:g} m) and twice "
+                f"rim_width below the shorter semi-axis ({rim_width:g} m against {min(a, b):g} m)"
+            )
+        perimeter = 2.0 * math.pi * math.sqrt((a * a + b * b) / 2.0)
+        _estimate(2.0 * rim_width * perimeter, rim_size)
+        rim = (float(rim_size), float(rim_width))
     cx, cy = (float(v) for v in center)
-    points, triangles, lines = mesh_ellipse((cx, cy), float(a), float(b), float(size))
+    points, triangles, lines = mesh_ellipse((cx, cy), float(a), float(b), float(size), rim)
     return from_triangles(points, triangles, lines, {"rim": Ellipse((cx, cy), float(a), float(b))})
 
 

@@ -36,8 +36,19 @@ Meshed = tuple[FloatArray, IntArray, dict[str, IntArray]]
 _TRIANGLE, _LINE = 2, 1  # gmsh element types: 3-node triangle, 2-node line
 
 
-def mesh_ellipse(center: tuple[float, float], a: float, b: float, size: float) -> Meshed:
-    """An ellipse, semi-axes ``a`` along x and ``b`` along y; one curve group, "rim"."""
+def mesh_ellipse(
+    center: tuple[float, float],
+    a: float,
+    b: float,
+    size: float,
+    rim: tuple[float, float] | None = None,
+) -> Meshed:
+    """An ellipse, semi-axes ``a`` along x and ``b`` along y; one curve group, "rim".
+
+    ``rim`` = (edge size, width): triangles of that edge within that distance of the rim,
+    growing to ``size`` over as much again inward (a clamped plate's boundary layer, where
+    a stretched plate bends over a few times sqrt(D / N)).
+    """
 
     def build(gmsh: Any) -> dict[str, list[int]]:
         if a >= b:
@@ -47,9 +58,30 @@ def mesh_ellipse(center: tuple[float, float], a: float, b: float, size: float) -
                 center[0], center[1], 0.0, b, a, zAxis=[0, 0, 1], xAxis=[0, 1, 0]
             )
         gmsh.model.occ.synchronize()
-        return {"rim": [tag for _, tag in gmsh.model.getEntities(1)]}
+        curves = [tag for _, tag in gmsh.model.getEntities(1)]
+        if rim is not None:
+            _grade_towards(gmsh, curves, size, *rim)
+        return {"rim": curves}
 
     return _mesh(build, size)
+
+
+def _grade_towards(gmsh: Any, curves: list[int], size: float, edge: float, width: float) -> None:
+    """A background size field: ``edge`` within ``width`` of ``curves``, ``size`` beyond twice
+    that, linear between (gmsh's Distance and Threshold fields)."""
+    field = gmsh.model.mesh.field
+    distance = field.add("Distance")
+    field.setNumbers(distance, "CurvesList", curves)
+    field.setNumber(distance, "Sampling", 400)
+    threshold = field.add("Threshold")
+    field.setNumber(threshold, "InField", distance)
+    field.setNumber(threshold, "SizeMin", edge)
+    field.setNumber(threshold, "SizeMax", size)
+    field.setNumber(threshold, "DistMin", width)
+    field.setNumber(threshold, "DistMax", 2.0 * width)
+    field.setAsBackgroundMesh(threshold)
+    gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+    gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
 
 
 def mesh_polygon(outer: FloatArray, holes: Sequence[FloatArray], size: float) -> Meshed:
@@ -77,6 +109,8 @@ def _mesh(build: Callable[[Any], dict[str, list[int]]], size: float) -> Meshed:
     """Build the model, mesh it with triangles of edge about ``size`` and read it back."""
     with _session() as gmsh:
         gmsh.model.add("membrane")
+        gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
+        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 1)
         try:
             return _read(gmsh, build(gmsh), size)
         finally:
@@ -87,7 +121,6 @@ def _read(gmsh: Any, groups: dict[str, list[int]], size: float) -> Meshed:
     gmsh.option.setNumber("Mesh.MeshSizeMax", size)
     gmsh.option.setNumber("Mesh.MeshSizeMin", 0.0)
     gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
-    gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
     gmsh.option.setNumber("Mesh.ElementOrder", 1)
     try:
         gmsh.model.mesh.generate(2)

@@ -10,9 +10,10 @@ basis's quadrature. In-plane conditions per boundary part:
 - "sliding": the normal component held, the tangential free (a straight edge along x or y);
 - "free": nothing held.
 
-The load is applied in ``steps`` equal increments (None: enough for the linear deflection's
-size, ``_steps``), each solved by Newton on the coupled tangent; an increment whose Newton
-does not converge is halved, up to ``_MAX_HALVINGS`` times. Units: SI, w and u in m.
+The load is applied in increments, the first ``1 / steps`` of it (None: enough for the linear
+deflection's size, ``_steps``), each solved by Newton on the coupled tangent; an increment
+whose Newton does not converge is halved, up to ``_MAX_HALVINGS`` times, and one that converges
+within ``_QUICK_ITERATIONS`` doubles the next. Units: SI, w and u in m.
 """
 
 from __future__ import annotations
@@ -50,6 +51,9 @@ INPLANE: tuple[str, ...] = get_args(InPlane)
 FloatArray = NDArray[np.float64]
 _MAX_ITERATIONS = 30
 _MAX_HALVINGS = 8
+# An increment that converged within this many iterations doubles the next: under a large load
+# the deflection grows as the load's cube root (a membrane), so later increments come easier.
+_QUICK_ITERATIONS = 4
 _AXIS_TOL = 1e-9  # a "sliding" edge's facets must lie along x or y within this (radians)
 
 
@@ -109,7 +113,9 @@ def solve_nonlinear(
             increment /= 2.0
             continue
         w, u, spent, last = attempt
-        done, iterations, taken = target, iterations + spent, taken + 1
+        done, iterations, taken, halvings = target, iterations + spent, taken + 1, 0
+        if spent <= _QUICK_ITERATIONS:  # an easy increment: the next may be twice as large
+            increment *= 2.0
     return NonlinearSolution(w, u, inplane_basis, taken, iterations, last)
 
 

@@ -74,6 +74,29 @@ def test_gmsh_meshes_an_ellipse_and_a_polygon_with_holes() -> None:
         fem.polygon([(0, 0), (1, 0), (1, 1), (0, 1)], 0.1, holes=[holes[1], holes[1]])
 
 
+def _edge_lengths(domain: fem.Domain) -> tuple[np.ndarray, np.ndarray]:
+    """Each edge's length and its midpoint's distance from the origin."""
+    ends = domain.mesh.p[:, domain.mesh.facets]  # (2, 2, edges)
+    return np.linalg.norm(ends[:, 0] - ends[:, 1], axis=0), np.linalg.norm(ends.mean(1), axis=0)
+
+
+def test_a_graded_rim_meshes_the_boundary_band_finer_and_leaves_the_next_mesh_alone() -> None:
+    pytest.importorskip("gmsh")
+    graded = fem.ellipse(1.0, 1.0, 0.4, rim_size=0.04, rim_width=0.05)
+    lengths, radii = _edge_lengths(graded)
+    assert lengths[radii > 0.98].max() <= 1.5 * 0.04  # the band, at about the rim's edge size
+    assert lengths[radii < 0.7].max() > 0.25  # the interior keeps its own
+    assert graded.area == pytest.approx(math.pi, rel=1e-3)  # a finer rim, a truer circle
+    plain = fem.ellipse(1.0, 1.0, 0.4)
+    assert plain.triangles < graded.triangles / 3 and _edge_lengths(plain)[0].min() > 0.15
+    with pytest.raises(fem.InvalidGeometry, match="go together"):
+        fem.ellipse(1.0, 1.0, 0.4, rim_size=0.04)
+    with pytest.raises(fem.InvalidGeometry, match="rim_size <= size"):
+        fem.ellipse(1.0, 1.0, 0.4, rim_size=0.5, rim_width=0.05)
+    with pytest.raises(fem.InvalidGeometry, match="at most"):
+        fem.ellipse(1.0, 1.0, 0.4, rim_size=1e-5, rim_width=0.1)
+
+
 def test_without_gmsh_the_error_names_the_mesh_extra(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "gmsh", None)  # import gmsh raises ImportError
     with pytest.raises(fem.MissingMesher, match=r"membrane-tissue\[mesh\]") as error:
