@@ -2,6 +2,7 @@
 what each way of answering costs (docs/NONLINEAR.md, "The trade-off").
 
     python benchmarks/nonlinear_tradeoff.py [--modes 8,12,16,20,30] [--out runs/nonlinear.json]
+    python benchmarks/nonlinear_tradeoff.py --modes 20 --costs-only --repeat 3   # step cost only
 
 On `skin-patch-nonlinear`'s mesh (the study's 50 mm clamped patch, 2.5 mm elements, edges held
 in their plane) and lattice (20 x 20):
@@ -54,6 +55,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--modes", default="8,12,16,20,30")
     parser.add_argument("--out", type=Path, default=Path("runs/nonlinear-tradeoff.json"))
+    parser.add_argument("--costs-only", action="store_true", help="the step costs (part 2) only")
+    parser.add_argument("--repeat", type=int, default=1, help="the cost table this many times")
     args = parser.parse_args()
     counts = [int(c) for c in args.modes.split(",")]
     scene = load_scene("skin-patch-nonlinear")
@@ -67,6 +70,10 @@ def main() -> None:
         plates[count] = reduce_plate(system, count, (20, 20), "held")
         builds[count] = time.perf_counter() - began
         print(f"reduced plate, {count} modes: built in {builds[count]:.1f} s", flush=True)
+    if args.costs_only:
+        for _ in range(args.repeat):
+            cost_table(scene, tissue, plates)
+        return
     presses = press_table(system, plates)
     costs = cost_table(scene, tissue, plates)
     full_step = full_step_cost(system)
