@@ -8,6 +8,12 @@ residual under the tools' point forces. The reduced plate is built once per tiss
 mode count and in-plane condition and cached beside the linear engine's tables
 (``reduced_cache``).
 
+The basis follows the tools (``basis_follower``): each tool's contact-adapted vector, the
+static response to a unit point force at its centre rounded to ``ADAPT_SPACING``, is added to
+the modes once built off the step's thread (``adapted_basis``), and a state moves onto it by
+the mass-orthogonal projection (``adapted_basis.carried``). A sphere pressed to 2 h takes the
+full plate's force within about 1 % with it, 4-5 % low without (docs/NONLINEAR.md).
+
 Units: SI, as the ``fem`` engine's: a tool's centre, radius and depth in m (depth > 0 presses
 along -z), its force in N (>= 0, the tissue pushed along -z), frames in m. It takes rigid tools
 and initial shapes; loads, probes and grasps are refused (``inputs``).
@@ -15,13 +21,19 @@ and initial shapes; loads, probes and grasps are refused (``inputs``).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from membrane_models.fem.adapted_basis import Adaptation, AdaptedPlate, carried
+from membrane_models.fem.assembly import ElementName, assemble
+from membrane_models.fem.basis_follower import BasisFollower
+from membrane_models.fem.geometry import Domain
 from membrane_models.fem.inside import inside_boundary
 from membrane_models.fem.models import Plate
 from membrane_models.fem.nonlinear import INPLANE
@@ -51,6 +63,7 @@ from membrane_models.live.stepper import positive
 from membrane_models.live.tools import ToolPoints, tool_points, tool_readings
 
 __all__ = [
+    "ADAPT_SPACING",
     "DEFAULT_MODES",
     "NONLINEAR_OPTIONS",
     "NonlinearPlateEngine",
@@ -66,10 +79,16 @@ DEFAULT_MODES = 20
 _DEPTH_PER_THICKNESS = 4.0
 _MAX_MODES = 40  # G has r^4 entries: 40 modes hold 20 MB and cost about 1 ms a Newton iteration
 _STATE_OVERHEAD = 2048
+# The grid a tool's adapted vector is put on (m): a vector 0.25 mm from a sphere's centre costs
+# its press at 2 h 0.1-0.5 % of the full plate's force, 1 mm up to 1.9 % (measured on the skin
+# patch, docs/NONLINEAR.md).
+ADAPT_SPACING = 0.25e-3
+_ADAPTED_KEPT = 8  # adapted bases kept built (about 6 MB each at 20 modes on the skin patch)
 
 NONLINEAR_OPTIONS = {
     "modes": f"the plate's lowest modes reduced to (default {DEFAULT_MODES}, at most {_MAX_MODES})",
     "inplane": 'the edges\' in-plane condition: "held" (default), "sliding" or "free"',
+    "adapted": "add each tool's static response at its centre to the basis (default true)",
 }
 
 
@@ -82,6 +101,8 @@ class NonlinearPlateState:
         q, v: the reduced coordinates and their rates.
         points, forces: the lattice points under the last step's tools and their forces (N),
             whose static residual the frame adds.
+        adapted: the basis q and v are on: the modes and the tools' adapted vectors (None:
+            the modes alone), with its step's ``coefficients``.
     """
 
     step: int
@@ -93,6 +114,8 @@ class NonlinearPlateState:
     owner: object = field(default=None, repr=False, compare=False)
     matrix: IterationMatrix | None = field(default=None, repr=False, compare=False)
     acceleration: FloatArray | None = field(default=None, repr=False, compare=False)
+    adapted: AdaptedPlate | None = field(default=None, repr=False, compare=False)
+    coefficients: StepCoefficients | None = field(default=None, repr=False, compare=False)
 
 
 class NonlinearPlateEngine:
@@ -109,6 +132,7 @@ class NonlinearPlateEngine:
         modes: int = DEFAULT_MODES,
         inplane: str = "held",
         plate: ReducedPlate | None = None,
+        adapted: bool = True,
     ) -> None:
         if not isinstance(tissue.model, Plate):
             raise InvalidEngineSettings("the fem-nonlinear engine steps a plate, not a membrane")
@@ -130,6 +154,17 @@ class NonlinearPlateEngine:
         self._no_points = np.zeros(0, dtype=np.intp)
         self._no_points.setflags(write=False)
         self._last_tool: tuple[tuple[object, ...], ToolPoints] | None = None
+        self.follower = (
+            BasisFollower(
+                functools.partial(
+                    _adaptation, _parts(tissue.domain), _model(tissue), self.plate, inplane
+                ),
+                ADAPT_SPACING,
+                _ADAPTED_KEPT,
+            )
+            if adapted
+            else None
+        )
 
     # -- the interface ----------------------------------------------------------------------
 
@@ -152,17 +187,26 @@ class NonlinearPlateEngine:
 
     @property
     def engine_bytes(self) -> int:
-        """The reduced plate's arrays (the quartic, the shapes and the residual)."""
+        """The reduced plate's arrays (the quartic, the shapes, the residual and the vectors),
+        and as many again for each adapted basis kept (one tool's: r + 1 vectors, the quartic
+        twice with its packed forms)."""
         p = self.plate
-        return int(p.quartic.nbytes + p.shapes.nbytes + p.residual.nbytes + self._inverse.nbytes)
+        own = p.quartic.nbytes + p.shapes.nbytes + p.residual.nbytes + self._inverse.nbytes
+        if self.follower is None:
+            return int(own + p.vectors.nbytes)
+        n = p.size + 1
+        adapted = 8 * (2 * n**4 + (n * (n + 1) // 2) ** 2 + p.residual.size
+                       + (p.shapes.shape[0] + 2 * p.vectors.shape[0]) * n)  # fmt: skip
+        return int(own + p.vectors.nbytes + self.follower.capacity * adapted)
 
     @property
     def state_bytes(self) -> int:
         """q, v and the acceleration, the forces of at most every tool's points with their
         indices, and the iteration matrix (the LU, the points' response and compliance)."""
-        r, points = self.plate.size, MAX_TOOLS * MAX_TOOL_POINTS
+        r, points = self.plate.size + MAX_TOOLS, MAX_TOOLS * MAX_TOOL_POINTS
         matrix = 8 * (r * r + r + r * points + points * points + points)
-        return 3 * 8 * r + 16 * points + matrix + _STATE_OVERHEAD
+        coefficients = 2 * 8 * r
+        return 3 * 8 * r + 16 * points + matrix + coefficients + _STATE_OVERHEAD
 
     def describe(self) -> dict[str, object]:
         p = self.plate
@@ -177,6 +221,7 @@ class NonlinearPlateEngine:
             "damping": self.damping if isinstance(self.damping, float) else "per mode",
             "modes": p.modes,
             "reduced_size": p.size,
+            "adapted": self._adapted_text(),
             "frequency_range_hz": [float(w / (2 * math.pi)) for w in (p.omega[0], p.omega[-1])],
             "integrator": "energy-consistent discrete gradient, Newton in the reduced space",
             "units": "SI",
@@ -210,6 +255,8 @@ class NonlinearPlateEngine:
         Raises:
             InvalidShape: a shape of the wrong size, or with NaN or inf.
         """
+        if self.follower is not None:  # a session is about to press: ready its first basis
+            self.follower.prepare()
         q, q_residual = self._project(displacement, "displacement")
         v, v_residual = self._project(velocity, "velocity")
         state = NonlinearPlateState(0, 0.0, q, v, self._no_points, np.zeros(0), self._owner)
@@ -246,10 +293,11 @@ class NonlinearPlateEngine:
         points = self._points(checked)
         same = np.array_equal(points.indices, state.points)
         start = state.forces > 0.0 if same and state.forces.size else None
+        begun = self._basis_for(state, checked)
         try:
-            solved = step_reduced(self.plate, self.coefficients, state.q, state.v,
+            solved = step_reduced(begun.plate, begun.coefficients, begun.q, begun.v,
                                   points.indices, points.surface, start=start,
-                                  matrix=state.matrix, acceleration=state.acceleration)  # fmt: skip
+                                  matrix=begun.matrix, acceleration=begun.acceleration)  # fmt: skip
         except NotConverged:
             raise InvalidTool(
                 "this step's contact could not be solved: the tools moved too far in one step"
@@ -257,10 +305,11 @@ class NonlinearPlateEngine:
         q, v = solved.q, solved.v
         q.flags.writeable = v.flags.writeable = False
         index = state.step + 1
-        acceleration = (v - state.v) / self._dt
+        acceleration = (v - begun.v) / self._dt
         acceleration.flags.writeable = False
         new = NonlinearPlateState(index, index * self._dt, q, v, points.indices, solved.forces,
-                                  self._owner, solved.matrix, acceleration)  # fmt: skip
+                                  self._owner, solved.matrix, acceleration, begun.adapted,
+                                  begun.coefficients)  # fmt: skip
         readings = tool_readings(checked, points, solved.forces, solved.displacement)
         return StepResult(new, self.frame(new) if frame else None, (), None, (), readings)
 
@@ -268,19 +317,58 @@ class NonlinearPlateEngine:
         """Displacements on the lattice (x-major, flattened), m: the reduced plate plus the
         residual under the tools' forces."""
         self._check(state)
-        values = self.plate.shapes @ state.q
+        plate = self._plate(state)
+        values = plate.shapes @ state.q
         if state.forces.size:
-            values -= self.plate.residual[:, state.points] @ state.forces
+            values -= plate.residual[:, state.points] @ state.forces
         return np.asarray(values)
 
     def energy(self, state: NonlinearPlateState) -> float:
         """Kinetic, bending and stretching energy of the reduced plate (J)."""
         self._check(state)
-        q, v = state.q, state.v
-        bending = 0.5 * float(np.sum(self.plate.omega**2 * q * q))
-        return 0.5 * float(v @ v) + bending + self.plate.stretching_energy(q)
+        plate, q, v = self._plate(state), state.q, state.v
+        bending = 0.5 * float(np.sum(plate.omega**2 * q * q))
+        return 0.5 * float(v @ v) + bending + plate.stretching_energy(q)
+
+    def close(self) -> None:
+        """Stop the adapted bases' worker thread (a build under way is finished first)."""
+        if self.follower is not None:
+            self.follower.close()
 
     # -- helpers ----------------------------------------------------------------------------
+
+    def _plate(self, state: NonlinearPlateState) -> ReducedPlate:
+        return self.plate if state.adapted is None else state.adapted.plate
+
+    def _basis_for(self, state: NonlinearPlateState, tools: Sequence[Tool]) -> _Begun:
+        """The basis this step is taken on and the state on it: the state's own, or the one
+        the tools' places call for once it is built (the state carried over by projection)."""
+        adapted = state.adapted
+        if self.follower is not None:
+            adapted = self.follower.follow(state.adapted, [tool.at for tool in tools])
+        if adapted is state.adapted:
+            plate = self._plate(state)
+            coefficients = state.coefficients or self.coefficients
+            return _Begun(plate, coefficients, adapted, state.q, state.v, state.matrix,
+                          state.acceleration)  # fmt: skip
+        assert adapted is not None
+        source = state.adapted if state.adapted is not None else self.plate
+        damping = self.tissue.damping_ratios(adapted.plate.omega)
+        coefficients = StepCoefficients.of(adapted.plate, self._dt, damping)
+        acceleration = state.acceleration
+        if acceleration is not None:
+            acceleration = carried(acceleration, source, adapted)
+        return _Begun(adapted.plate, coefficients, adapted, carried(state.q, source, adapted),
+                      carried(state.v, source, adapted), None, acceleration)  # fmt: skip
+
+    def _adapted_text(self) -> dict[str, object] | None:
+        if self.follower is None:
+            return None
+        return {
+            "vectors": "each tool's static response to a unit force at its centre",
+            "spacing": ADAPT_SPACING,
+            "kept": self.follower.capacity,
+        }
 
     def _points(self, tools: Sequence[Tool]) -> ToolPoints:
         """The lattice points under ``tools``. One tool's are kept from the last step where
@@ -314,6 +402,42 @@ class NonlinearPlateEngine:
             raise InvalidState("this state was not made by this engine (use its start())")
 
 
+def _adaptation(
+    domain: tuple[Any, dict[str, Any], dict[str, Any]],
+    tissue: tuple[Plate, Any, ElementName | None],
+    plate: ReducedPlate,
+    inplane: str,
+) -> Adaptation:
+    """What ``plate``'s adapted bases are built from, in the follower's worker process: the
+    domain as its mesh, parts and curves (its read-only maps do not pickle), the tissue as its
+    model, supports and element."""
+    model, supports, element = tissue
+    system = assemble(Domain(*domain), model, supports, element)
+    return Adaptation.of(system, plate, inplane)
+
+
+def _parts(domain: Domain) -> tuple[Any, dict[str, Any], dict[str, Any]]:
+    return domain.mesh, dict(domain.parts), dict(domain.curves)
+
+
+def _model(tissue: Tissue) -> tuple[Plate, Any, ElementName | None]:
+    assert isinstance(tissue.model, Plate)
+    return tissue.model, tissue.supports, tissue.element
+
+
+@dataclass(frozen=True)
+class _Begun:
+    """A step's start on the basis it is taken on."""
+
+    plate: ReducedPlate
+    coefficients: StepCoefficients
+    adapted: AdaptedPlate | None
+    q: FloatArray
+    v: FloatArray
+    matrix: IterationMatrix | None
+    acceleration: FloatArray | None
+
+
 def build_nonlinear_engine(
     problem: object, lattice: tuple[int, ...], dt: float, options: Mapping[str, object]
 ) -> NonlinearPlateEngine:
@@ -334,6 +458,8 @@ def build_nonlinear_engine(
         raise InvalidEngineSettings(f"[live] inplane must be one of {', '.join(INPLANE)}")
     if len(lattice) != 2:
         raise InvalidEngineSettings("a tissue's lattice needs nx and ny")
-    return NonlinearPlateEngine(
-        problem, (int(lattice[0]), int(lattice[1])), dt, modes=modes, inplane=str(inplane)
-    )
+    adapted = options.get("adapted", True)
+    if not isinstance(adapted, bool):
+        raise InvalidEngineSettings("[live] adapted must be true or false")
+    return NonlinearPlateEngine(problem, (int(lattice[0]), int(lattice[1])), dt, modes=modes,
+                                inplane=str(inplane), adapted=adapted)  # fmt: skip

@@ -2,9 +2,12 @@
 
 Building a reduced plate (``reduced_plate``: modes, an in-plane solve per pair of them, the
 residual at the lattice points) takes seconds on the skin patch; reading it back takes
-milliseconds. An entry is keyed as the tables are (``cache.table_key``: the mesh, the model,
-the supports, the mode count, the lattice and the fem sources) with the in-plane condition and
-``FORMAT`` added, and is verified against its key and content digest before use.
+milliseconds. The modes are kept on every DOF too: a contact-adapted vector is made
+orthogonal to these very vectors (``adapted_basis``), not to a new eigensolve's (whose
+degenerate pairs may come out rotated). An entry is keyed as the tables are
+(``cache.table_key``: the mesh, the model, the supports, the mode count, the lattice and the
+fem sources) with the in-plane condition and ``FORMAT`` added, and is verified against its key
+and content digest before use.
 """
 
 from __future__ import annotations
@@ -23,8 +26,8 @@ from membrane_models.live.tabulated_basis import frozen
 __all__ = ["FORMAT", "cached_reduced_plate"]
 
 logger = logging.getLogger(__name__)
-FORMAT = 1  # bump when a reduced plate's meaning changes without a change to the fem sources
-_ARRAYS = ("omega", "quartic", "shapes", "residual", "movable", "boundary")
+FORMAT = 2  # bump when a reduced plate's meaning changes without a change to the fem sources
+_ARRAYS = ("omega", "quartic", "shapes", "residual", "movable", "boundary", "vectors")
 
 
 def cached_reduced_plate(
@@ -51,6 +54,7 @@ def cached_reduced_plate(
             (float(meta["upper"][0]), float(meta["upper"][1])),
             int(meta["modes"]),
             frozen(arrays["boundary"]),
+            frozen(arrays["vectors"]),
         )
     logger.info("building the reduced plate of %s (%d modes, in-plane %s)", tissue.name,
                 modes, inplane)  # fmt: skip

@@ -36,20 +36,18 @@ import scipy.linalg
 import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.linalg import SuperLU, splu
-from skfem.helpers import grad, sym_grad
 
 from membrane_models.fem.assembly import System
+from membrane_models.fem.condensation import Condensation
 from membrane_models.fem.errors import InvalidModel, InvalidSolve
 from membrane_models.fem.modal import Modes
 from membrane_models.fem.modal import modes as lowest_modes
 from membrane_models.fem.models import Plate
-from membrane_models.fem.nonlinear import Equilibrium
 from membrane_models.fem.sampling import sampler
 from membrane_models.fem.static import point_load
 from membrane_models.fem.tables import boundary_segments, inside_mesh, lattice_points
-from membrane_models.fem.von_karman import tangent
 
-__all__ = ["ReducedPlate", "reduce_plate"]
+__all__ = ["ReducedPlate", "quartic_from_pairs", "reduce_plate"]
 
 FloatArray = NDArray[np.float64]
 # The quartic's pairs are built this many at a time: each holds its strain at every quadrature
@@ -70,6 +68,8 @@ class ReducedPlate:
         lattice, lower, upper: the lattice (points per axis) over the box (m).
         modes: how many of the r vectors are the plate's modes (the rest: static vectors).
         boundary: the mesh's boundary segments (segments, 2, 2), m: what ``contains`` tests.
+        vectors: V on every DOF of the system it was reduced from (DOFs, r), m per unit q:
+            what a contact-adapted vector is made orthogonal to (``adapted_basis``).
     """
 
     omega: FloatArray
@@ -82,6 +82,7 @@ class ReducedPlate:
     upper: tuple[float, float]
     modes: int
     boundary: FloatArray
+    vectors: FloatArray
 
     @property
     def size(self) -> int:
@@ -181,7 +182,7 @@ def reduce_plate(
     size = (int(lattice[0]), int(lattice[1]))
     segments = boundary_segments(system)
     return ReducedPlate(omega, quartic, shapes, residual, movable, size, lower, upper,
-                        found.count, segments)  # fmt: skip
+                        found.count, segments, vectors)  # fmt: skip
 
 
 def _ritz(
@@ -211,52 +212,27 @@ def _ritz(
 
 def _quartic(system: System, vectors: FloatArray, inplane: Mapping[str, str] | str) -> FloatArray:
     """G of the basis ``vectors`` (on every DOF), the in-plane field condensed."""
-    plate = system.model
-    assert isinstance(plate, Plate)
-    a, nu = plate.stretching_stiffness, plate.poisson
-    problem = Equilibrium.of(system, inplane, sp.csr_matrix(system.stiffness))
-    inplane_basis, pick = problem.inplane_basis, problem.pick_u
-    zeros_w, zeros_u = np.zeros(system.dofs), np.zeros(inplane_basis.N)
-    k_uu = tangent(system.basis, inplane_basis, system.stiffness, zeros_w, zeros_u, a, nu).uu
-    solver = splu(sp.csc_matrix(pick.T @ k_uu @ pick))
-    plate_basis = system.basis
-    dx = np.asarray(plate_basis.dx)  # (E, Q)
-    slopes = np.stack([np.asarray(grad(plate_basis.interpolate(v))) for v in vectors.T])
-    strains = np.stack([np.asarray(sym_grad(psi[0])) for psi in inplane_basis.basis])  # (J,2,2,E,Q)
-    dofs = inplane_basis.element_dofs  # (J, E)
+    condensation = Condensation.of(system, inplane)
+    slopes = condensation.slopes(vectors)
     r = vectors.shape[1]
-    pairs = [(j, k) for j in range(r) for k in range(j, r)]
-    components = []  # per pair: eps_xx, eps_yy, eps_xy at every quadrature point, times sqrt(dx)
-    root = np.sqrt(dx)
-    for start in range(0, len(pairs), _PAIR_CHUNK):
-        chunk = pairs[start : start + _PAIR_CHUNK]
-        left = np.array([p[0] for p in chunk])
-        right = np.array([p[1] for p in chunk])
-        e = 0.25 * (
-            np.einsum("paeq,pbeq->pabeq", slopes[left], slopes[right])
-            + np.einsum("paeq,pbeq->pabeq", slopes[right], slopes[left])
-        )
-        traces = np.einsum("paaeq->peq", e)[:, None, None]
-        stress = a * ((1 - nu) * e + nu * traces * np.eye(2)[None, :, :, None, None])
-        local = np.einsum("pabeq,jabeq,eq->pje", stress, strains, dx)  # (P, J, E)
-        loads = np.zeros((len(chunk), inplane_basis.N))
-        for index in range(len(chunk)):
-            np.add.at(loads[index], dofs, local[index])
-        solved = pick @ solver.solve(np.ascontiguousarray(-(pick.T @ loads.T)))  # (N_u, P)
-        coefficients = solved[dofs]  # (J, E, P)
-        total = e + np.einsum("jep,jabeq->pabeq", coefficients, strains)
-        components.append(
-            np.stack([total[:, 0, 0] * root, total[:, 1, 1] * root, total[:, 0, 1] * root], axis=1)
-        )
-    x = np.concatenate(components).reshape(len(pairs), 3, -1)
-    xx, yy, xy = x[:, 0], x[:, 1], x[:, 2]
-    trace = xx + yy
-    g_pairs = a * ((1 - nu) * (xx @ xx.T + yy @ yy.T + 2.0 * xy @ xy.T) + nu * trace @ trace.T)
-    g_pairs = 0.5 * (g_pairs + g_pairs.T)  # symmetric to the last bit: (jk) <-> (lm)
+    first, second = np.triu_indices(r)
+    components = []  # per pair: E_xx, E_yy, E_xy at every quadrature point, times sqrt(dx)
+    for start in range(0, first.size, _PAIR_CHUNK):
+        left, right = first[start : start + _PAIR_CHUNK], second[start : start + _PAIR_CHUNK]
+        strain = condensation.condensed(condensation.quadratic(slopes[left], slopes[right]))
+        components.append(condensation.components(strain))
+    x = np.concatenate(components)
+    g_pairs = condensation.products(x, x)
+    return quartic_from_pairs(0.5 * (g_pairs + g_pairs.T), r)  # (jk) <-> (lm) to the last bit
+
+
+def quartic_from_pairs(g_pairs: FloatArray, r: int) -> FloatArray:
+    """G (r, r, r, r) from its values on the pairs j <= k (rows and columns in
+    ``np.triu_indices(r)``'s order), filled by its symmetries."""
+    first, second = np.triu_indices(r)
     quartic = np.zeros((r, r, r, r))
-    table = np.array(pairs)
-    for row, (j, k) in zip(g_pairs, pairs, strict=True):
-        quartic[j, k, table[:, 0], table[:, 1]] = row
-        quartic[j, k, table[:, 1], table[:, 0]] = row
+    for row, j, k in zip(g_pairs, first, second, strict=True):
+        quartic[j, k, first, second] = row
+        quartic[j, k, second, first] = row
         quartic[k, j] = quartic[j, k]
     return quartic
