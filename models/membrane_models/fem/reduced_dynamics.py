@@ -24,9 +24,10 @@ The static press is the same iteration without inertia.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg.lapack
@@ -58,18 +59,27 @@ class NotConverged(RuntimeError):
 
 @dataclass(frozen=True)
 class StepCoefficients:
-    """What a step of ``dt`` adds to the Jacobian's diagonal: 2 / dt^2 + 2 zeta omega / dt +
-    omega^2 / 2, and the damping's D."""
+    """What a step of ``dt`` (s) on one plate needs besides its state, computed once: D =
+    2 zeta omega (1/s), the Jacobian's diagonal 2 / dt^2 + D / dt + omega^2 / 2 and the weight
+    2 / dt^2 + 2 D / dt (1/s^2) of q0 in the step's known side (``step_reduced``), and the
+    diagonal on the plate's pairs (``ReducedPlate.pairs``: 0 off the pairs (i, i))."""
 
     dt: float
     damping: FloatArray
     diagonal: FloatArray
+    lagging: FloatArray
+    pair_diagonal: FloatArray
 
     @classmethod
     def of(cls, plate: ReducedPlate, dt: float, zeta: float | FloatArray) -> StepCoefficients:
         damping = np.broadcast_to(2.0 * np.asarray(zeta) * plate.omega, plate.omega.shape)
         diagonal = 2.0 / dt**2 + damping / dt + 0.5 * plate.omega**2
-        return cls(dt, np.asarray(damping, dtype=np.float64), np.asarray(diagonal))
+        lagging = 2.0 / dt**2 + 2.0 * damping / dt
+        every = np.arange(plate.size)
+        pair_diagonal = np.zeros(plate.pairs[0].size)
+        pair_diagonal[plate.pairs[2][every, every]] = diagonal
+        return cls(dt, np.asarray(damping, dtype=np.float64), np.asarray(diagonal),
+                   np.asarray(lagging), pair_diagonal)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -103,36 +113,53 @@ def step_reduced(
     the last step's iteration matrix (``Solved.matrix``), Newton's first; ``acceleration``:
     the last step's mean acceleration, for Newton's first guess q0 + dt v0 + dt^2 a / 2.
 
+    The residual is the module's second line times 2 / dt with v1 eliminated, written on
+    s = q0 + q1 so that an iterate costs one product with G and one with H:
+
+        F(q1) = (H((Q0 + Q1) / 2) + diag(d)) s - (2 / dt^2 (q0 + dt v0) + l q0 + load),
+
+    d the Jacobian's diagonal and l = 2 / dt^2 + 2 D / dt (``StepCoefficients``).
+
     Raises:
         NotConverged: Newton did not converge.
     """
     dt = coefficients.dt
     r = plate.size
-    start_pairs = plate.pair_products(q0)
-    guess = q0 + dt * v0
-    if acceleration is not None:
-        guess += (0.5 * dt * dt) * acceleration
-    linear_rhs = (2.0 / dt**2) * (q0 + dt * v0) + (coefficients.damping / dt) * q0
-    linear_rhs -= 0.5 * plate.omega**2 * q0
+    first, second, index = plate.pairs
+    packed, pair_diagonal = plate.pairs_matrix, coefficients.pair_diagonal
+    diagonal = coefficients.diagonal
+    start_pairs = q0[first] * q0[second]
+    ahead = q0 + dt * v0
+    guess = ahead if acceleration is None else ahead + (0.5 * dt * dt) * acceleration
+    known = (2.0 / dt**2) * ahead
+    known += coefficients.lagging * q0
     if load is not None:
-        linear_rhs = linear_rhs + load
+        known += load
 
     def residual(q1: FloatArray) -> FloatArray:
-        h = plate.contracted(0.5 * (start_pairs + plate.pair_products(q1)))
-        return np.asarray(coefficients.diagonal * q1 - linear_rhs + h @ (q0 + q1))
+        pairs = q1[first] * q1[second]
+        pairs += start_pairs
+        pairs *= 0.5
+        mean = packed @ pairs  # H((Q0 + Q1) / 2) on the pairs
+        mean += pair_diagonal
+        f = mean[index] @ (q0 + q1)
+        f -= known
+        return np.asarray(f)
 
     def jacobian(q1: FloatArray) -> FloatArray:
         middle = 0.5 * (q0 + q1)
-        h = plate.contracted(0.5 * (start_pairs + plate.pair_products(q1)))
+        h = (packed @ (0.5 * (start_pairs + q1[first] * q1[second])))[index]
         crossed = (plate.crossed_matrix @ np.outer(middle, q1).ravel()).reshape(r, r)
         tangent = h + 2.0 * crossed
-        tangent.flat[:: r + 1] += coefficients.diagonal
+        tangent.flat[:: r + 1] += diagonal
         return np.asarray(tangent)
 
     q, forces, displacement, iterations, used = _newton(
         plate, residual, jacobian, guess, points, surface, active=start, matrix=matrix
     )
-    v = 2.0 * (q - q0) / dt - v0
+    v = q - q0
+    v *= 2.0 / dt
+    v -= v0
     return Solved(q, v, forces, displacement, iterations, used)
 
 
@@ -172,13 +199,19 @@ def press_reduced(
 @dataclass(frozen=True, eq=False)
 class IterationMatrix:
     """A factored Jacobian and what it gives the tools' points: the iteration matrix of the
-    next step's Newton (a chord iteration; a step's Jacobian changes little from the last)."""
+    next step's Newton (a chord iteration; a step's Jacobian changes little from the last).
+
+    Besides its fields it keeps, once asked, the points' flexibility and the last active
+    set's contact solution (``solution``): a press keeps one matrix and one set for many
+    steps."""
 
     lu: FloatArray
     pivots: NDArray[np.int32]
     points: IntArray
+    shapes: FloatArray  # P, the basis at the points (p, r), m per unit q
     response: FloatArray  # J^-1 P'
     compliance: FloatArray  # P J^-1 P' + R_pp
+    _solutions: dict[bytes, FloatArray | None] = field(default_factory=dict, repr=False)
 
     @classmethod
     def of(cls, plate: ReducedPlate, jacobian: FloatArray, points: IntArray) -> IterationMatrix:
@@ -187,21 +220,49 @@ class IterationMatrix:
 
     def at(self, plate: ReducedPlate, points: IntArray) -> IterationMatrix:
         """The same matrix for another set of points."""
-        if np.array_equal(points, self.points):
+        if points is self.points or np.array_equal(points, self.points):
             return self
         factor = (self.lu, self.pivots)
         return IterationMatrix(self.lu, self.pivots, points, *_point_response(plate, factor,
                                points))  # fmt: skip
 
+    @functools.cached_property
+    def flexibility(self) -> FloatArray:
+        """C - P J^-1 P' (m/N): the points' displacement per unit force beyond the basis's."""
+        return np.asarray(self.compliance - self.shapes @ self.response)
+
+    def solution(self, chosen: IntArray) -> FloatArray | None:
+        """With the points ``chosen`` (A, a of the p) in contact and the others (B) not: the
+        (2 p - a, p) matrix that takes the violation b to the forces F (F_A = C_AA^-1 b_A, 0
+        on B) and then B's gaps C_BA F_A - b_B, in one product. None where C_AA is singular;
+        kept for the last set asked."""
+        key = chosen.tobytes()
+        if key in self._solutions:
+            return self._solutions[key]
+        c = self.compliance
+        count = c.shape[0]
+        lu, pivots, info = _GETRF(c[np.ix_(chosen, chosen)])
+        solution = None
+        if info == 0:
+            inverse, info = _GETRI(lu, pivots)
+            rest = np.setdiff1d(np.arange(count), chosen)
+            solution = np.zeros((2 * count - chosen.size, count))
+            solution[np.ix_(chosen, chosen)] = inverse
+            solution[count:, chosen] = c[np.ix_(rest, chosen)] @ inverse
+            solution[count + np.arange(rest.size), rest] = -1.0
+        self._solutions.clear()  # one set: the state's memory stays about the matrix's own
+        self._solutions[key] = solution
+        return solution
+
 
 def _point_response(
     plate: ReducedPlate, factor: tuple[FloatArray, NDArray[np.int32]], points: IntArray
-) -> tuple[FloatArray, FloatArray]:
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     shapes = plate.shapes[points]
     if not points.size:
-        return np.zeros((plate.size, 0)), np.zeros((0, 0))
+        return shapes, np.zeros((plate.size, 0)), np.zeros((0, 0))
     response = _solve(factor, np.ascontiguousarray(shapes.T))
-    return response, shapes @ response + plate.residual[np.ix_(points, points)]
+    return shapes, response, shapes @ response + plate.residual[np.ix_(points, points)]
 
 
 def _newton(
@@ -222,30 +283,33 @@ def _newton(
     A chord iteration: the Jacobian (or the last step's ``matrix``) is factored once and
     refreshed at the current iterate every ``refresh`` iterations. The residual is always
     exact, so the answer is Newton's; only the rate of convergence depends on the matrix."""
-    shapes = plate.shapes[points]  # (p, r)
     forces = np.zeros(points.size)
-    scale = max(float(np.abs(q).max()), 1e-300)
-    chosen = None if active is None else np.flatnonzero(active)
+    # |step| <= tol max(scale, |q|): tried on the start's scale first, |q| only when that fails
+    bound = _TOLERANCE * max(float(np.abs(q).max()), 1e-300)
+    chosen = None if active is None else active.nonzero()[0]
     current = None if matrix is None else matrix.at(plate, points)
-    contact = None if current is None else _Contact(current.compliance, chosen)
+    contact = None if current is None else _Contact(current, chosen)
     for iteration in range(1, MAX_ITERATIONS + 1):
         if current is None or contact is None or (iteration > 1 and (iteration - 1) % refresh == 0):
             current = IterationMatrix.of(plate, jacobian(q), points)
-            contact = _Contact(current.compliance, chosen if contact is None else contact.chosen)
-        shift = _solve((current.lu, current.pivots), residual(q))
+            contact = _Contact(current, chosen if contact is None else contact.chosen)
+        shift = _GETRS(current.lu, current.pivots, residual(q))[0]
         if points.size:
-            free = shapes @ (q - shift)
-            forces = contact.forces(free - surface)
-            step = shift + current.response @ forces
+            free = current.shapes @ (q - shift)
+            free -= surface
+            forces = contact.forces(free)
+            step = current.response @ forces
+            step += shift
         else:
             step = shift
         q = q - step
         change = float(np.abs(step).max())
         if not math.isfinite(change):
             break
-        if change <= _TOLERANCE * max(scale, float(np.abs(q).max())):
-            flexibility = current.compliance - shapes @ current.response
-            displacement = shapes @ q - flexibility @ forces
+        if change <= bound or change <= _TOLERANCE * float(np.abs(q).max()):
+            displacement = current.shapes @ q
+            if points.size:
+                displacement -= current.flexibility @ forces
             return q, forces, displacement, iteration, current
     raise NotConverged(f"Newton did not converge in {MAX_ITERATIONS} iterations")
 
@@ -266,37 +330,44 @@ def _solve(factor: tuple[FloatArray, NDArray[np.int32]], rhs: FloatArray) -> Flo
 
 class _Contact:
     """The points' forces for one iteration matrix: the last solve's active set tried first
-    (usually still right), its block's LU kept while the set stays; else ``solve_points``
-    from it."""
+    (usually still right; its block is the matrix's, kept across steps), else
+    ``solve_points`` from it."""
 
-    def __init__(self, compliance: FloatArray, chosen: IntArray | None) -> None:
-        self.compliance = compliance
+    def __init__(self, matrix: IterationMatrix, chosen: IntArray | None) -> None:
+        self.matrix = matrix
         self.chosen = chosen  # the active set to try first (None: the violated points)
-        self._factor: tuple[FloatArray, NDArray[np.int32]] | None = None
 
     def forces(self, violation: FloatArray) -> FloatArray:
-        c = self.compliance
-        chosen = np.flatnonzero(violation > 0.0) if self.chosen is None else self.chosen
+        chosen = (violation > 0.0).nonzero()[0] if self.chosen is None else self.chosen
         if chosen.size:
-            if self._factor is None:
-                lu, pivots, info = _GETRF(c[chosen][:, chosen])
-                self._factor = (lu, pivots) if info == 0 else None
-            if self._factor is not None:
-                forces = np.zeros(violation.size)
-                forces[chosen] = _GETRS(*self._factor, violation[chosen])[0]
-                gap = c @ forces - violation
-                gap[chosen] = 0.0
-                tolerance = _CONTACT_TOLERANCE * float(np.abs(violation).max())
-                if forces.min() >= 0.0 and gap.min() >= -tolerance:
+            solution = self.matrix.solution(chosen)
+            if solution is not None:
+                solved = solution @ violation
+                forces, gaps = solved[: violation.size], solved[violation.size :]
+                if forces.min() >= 0.0 and _open(gaps, violation):
                     self.chosen = chosen
                     return forces
+        elif not (violation > 0.0).any():  # nothing touches: solve_points' zeros at once
+            self.chosen = chosen
+            return np.zeros(violation.size)
         start = None
         if self.chosen is not None:
             start = np.zeros(violation.size, dtype=bool)
             start[self.chosen] = True
-        forces = solve_points(c, violation, start)
-        self.chosen, self._factor = np.flatnonzero(forces > 0.0), None
+        forces = solve_points(self.matrix.compliance, violation, start)
+        self.chosen = (forces > 0.0).nonzero()[0]
         return forces
 
 
-_GETRF, _GETRS = scipy.linalg.lapack.get_lapack_funcs(("getrf", "getrs"), dtype=np.float64)
+def _open(gaps: FloatArray, violation: FloatArray) -> bool:
+    """Whether the points out of contact stay open: their gaps C F - b at least -tolerance
+    (relative to the largest violation, worked out only when a gap is negative)."""
+    if not gaps.size:
+        return True
+    lowest = float(gaps.min())
+    return lowest >= 0.0 or lowest >= -_CONTACT_TOLERANCE * float(np.abs(violation).max())
+
+
+_GETRF, _GETRS, _GETRI = scipy.linalg.lapack.get_lapack_funcs(
+    ("getrf", "getrs", "getri"), dtype=np.float64
+)
