@@ -17,9 +17,11 @@ Physics as small weak forms assembled with scikit-fem, one job per module:
   ``nonlinear_press``: rigid tools pressed into it on every DOF (the reduced engine's
   reference);
 - ``reduced_plate``: the von Karman plate reduced to a few modes, the in-plane field condensed
-  (its stretching energy a quartic, its force cubic); ``reduced_dynamics``: its
-  energy-consistent step and static press with rigid tools; ``reduced_cache``: reduced plates
-  kept beside the tables; ``nonlinear_engine``: the ``fem-nonlinear`` engine kind.
+  (``condensation``; its stretching energy a quartic, its force cubic); ``reduced_dynamics``:
+  its energy-consistent step and static press with rigid tools; ``reduced_cache``: reduced
+  plates kept beside the tables; ``adapted_basis``: a tool's static response added to the
+  modes incrementally; ``basis_follower``: those kept where the tools are, built off the step;
+  ``nonlinear_engine``: the ``fem-nonlinear`` engine kind.
 
 Bad input raises a ``FemError`` (a ``membrane_errors.UserError``). Nothing here imports torch.
 """

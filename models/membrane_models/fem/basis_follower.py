@@ -26,6 +26,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
+from typing import TypeVar
 
 from membrane_models.fem.adapted_basis import Adaptation, AdaptedPlate
 from membrane_models.fem.errors import FemError
@@ -35,6 +36,7 @@ __all__ = ["BasisFollower", "Places"]
 logger = logging.getLogger(__name__)
 Places = tuple[tuple[float, float], ...]
 _NICENESS = 10  # the worker's, above the steps' process
+_T = TypeVar("_T")
 
 
 class BasisFollower:
@@ -62,6 +64,7 @@ class BasisFollower:
         self._lock = threading.Lock()
         self._worker: ProcessPoolExecutor | None = None
         self._warming: Future[None] | None = None
+        self._broken = False
 
     def places(self, centres: Sequence[tuple[float, ...]]) -> Places:
         """The tools' centres rounded to the grid, sorted, without repeats."""
@@ -92,7 +95,7 @@ class BasisFollower:
             if built is not None:
                 self._built.move_to_end(wanted)
                 return built
-            if wanted not in self._refused and self._pending is None:
+            if wanted not in self._refused and self._pending is None and not self._broken:
                 self._start(wanted)
         return basis
 
@@ -100,10 +103,9 @@ class BasisFollower:
         """Start the worker and make what builds need (seconds), so that the first place asked
         for is built in a fraction of a second; nothing if it is under way or done."""
         with self._lock:
-            if self._worker is None:
+            if self._worker is None and not self._broken:
                 self._open()
-                assert self._worker is not None
-                self._warming = self._worker.submit(_prepare)
+                self._warming = self._submit(_prepare)
 
     def wait(self) -> None:
         """Until the worker's preparation and the build under way (if any) have ended: for
@@ -133,8 +135,22 @@ class BasisFollower:
     def _start(self, wanted: Places) -> None:
         if self._worker is None:
             self._open()
+            self._warming = self._submit(_prepare)
+        future = self._submit(_build, wanted)
+        if future is not None:
+            self._pending = (wanted, future)
+
+    def _submit(self, job: Callable[..., _T], *args: object) -> Future[_T] | None:
+        """``job`` on the worker, or None once the worker has died (the modes alone then)."""
         assert self._worker is not None
-        self._pending = (wanted, self._worker.submit(_build, wanted))
+        if self._broken:
+            return None
+        try:
+            return self._worker.submit(job, *args)
+        except Exception:  # a dead worker, or one that could not start (what it was given)
+            logger.exception("the adapted bases' worker is gone: the modes alone from now on")
+            self._broken = True
+            return None
 
     def _collect(self) -> None:
         """Take the finished build in (the lock held)."""

@@ -182,3 +182,26 @@ def test_the_engine_steps_onto_the_tools_vector_once_it_is_built(
         assert moved.adapted is not None and result.tools[0].force > 0.5
     finally:
         engine.close()
+
+
+@pytest.mark.slow
+def test_a_basis_the_worker_cannot_build_leaves_the_state_on_its_own() -> None:
+    # an adaptation that fails in the worker: the place is given up, the step goes on with
+    # the basis it has and never asks again
+    failing = BasisFollower(functools.partial(Adaptation.of, None, None, "held"), 0.00025)
+    try:
+        assert failing.follow(None, [OFF_CENTRE]) is None  # asked
+        failing.wait()
+        assert failing.follow(None, [OFF_CENTRE]) is None  # given up
+        assert failing._refused == {failing.places([OFF_CENTRE])}
+    finally:
+        failing.close()
+    # a worker that cannot even start (a System does not pickle): the modes alone, no error
+    unstartable = BasisFollower(functools.partial(Adaptation.of, _patch(), _base(), "held"),
+                                0.00025)  # fmt: skip
+    try:
+        assert unstartable.follow(None, [OFF_CENTRE]) is None
+        unstartable.wait()
+        assert unstartable.follow(None, [OFF_CENTRE]) is None
+    finally:
+        unstartable.close()
