@@ -17,8 +17,10 @@ the strong band of the Koopman datasets).
 3. The energy over 10^4 steps without damping or input (its spread).
 4. The step's cost in-process, microseconds, median of ``--repeats`` runs of 2,000 steps each
    (each run continuing from the same ringing state under the input held, as a haptic loop
-   steps; its first step is the impact), the nonlinear and the linear rope alternating: a free
-   step with its frame, a probe, a load, a grasp and a rigid tool.
+   steps; its first step is the impact), the nonlinear rope, the linear rope and the nonlinear
+   rope's numpy path (``compiled=False``: what it steps by without numba) alternating: a free
+   step with its frame, a probe, a load, a grasp and a rigid tool. ``--costs-only``: this part
+   alone.
 """
 
 from __future__ import annotations
@@ -49,7 +51,11 @@ def shape(x: np.ndarray) -> np.ndarray:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--costs-only", action="store_true", help="the step costs alone")
     args = parser.parse_args()
+    if args.costs_only:
+        costs(args.repeats)
+        return
     print(f"nonlinearity k S* / c^2 = {float(STRING.nonlinearity(MODES, np.zeros(128))):.3f}")
     reference = solve_kirchhoff(STRING, MODES, np.zeros(128), [0.0, 1.0])
     expected = reference.q[-1]
@@ -114,23 +120,28 @@ def costs(repeats: int) -> None:
         "grasp": {"grasps": [Grasp((0.3,), 0.02, 0.02)]},
         "sphere tool": {"tools": [Tool("sphere", (0.3,), 0.01, 0.02)]},
     }
-    engines = {"nonlinear": KirchhoffEngine(StringKirchhoff(), 130, 1e-3),
-               "linear": ModalEngine(StringKirchhoff(), 130, 1e-3)}  # fmt: skip
+    nonlinear = KirchhoffEngine(StringKirchhoff(), 130, 1e-3)
+    engines = {"nonlinear": nonlinear,
+               "linear": ModalEngine(StringKirchhoff(), 130, 1e-3),
+               "numpy": KirchhoffEngine(StringKirchhoff(), 130, 1e-3, compiled=False)}  # fmt: skip
     states = {}
     for name, engine in engines.items():
         state = engine.start(shape(X)).state
         for _ in range(200):
             state = engine.step(state).state
         states[name] = state
-    print("\n| step | nonlinear (us) | linear (us) | ratio |")
-    print("| --- | --- | --- | --- |")
+    compiled = "compiled" if nonlinear.compiled else "numpy (numba is not installed)"
+    print(f"\nthe nonlinear rope's step: {compiled}")
+    print("\n| step | nonlinear (us) | linear (us) | ratio | numpy path (us) | ratio |")
+    print("| --- | --- | --- | --- | --- | --- |")
     for case, inputs in cases.items():
         figures: dict[str, list[float]] = {name: [] for name in engines}
         for _ in range(repeats):
             for name, engine in engines.items():
                 figures[name].append(_run_cost(engine, states[name], inputs))
-        ours, theirs = (float(np.median(figures[name])) for name in engines)
-        print(f"| {case} | {ours:.0f} | {theirs:.0f} | {ours / theirs:.2f} |")
+        ours, theirs, numpy_path = (float(np.median(figures[name])) for name in engines)
+        print(f"| {case} | {ours:.0f} | {theirs:.0f} | {ours / theirs:.2f} | {numpy_path:.0f} "
+              f"| {numpy_path / theirs:.2f} |")  # fmt: skip
 
 
 def _run_cost(engine: ModalEngine, state: object, inputs: dict[str, list[object]]) -> float:

@@ -21,9 +21,12 @@ keeps the static force exact, at a numerical damping ratio of about w dt / 2 whi
 (0.2 % of the fundamental at the scene's dt). Contact is inelastic.
 Given T the step is linear, so loads, probes, grasps and tools are the stepping core's
 (``stepper.ModalStepper``, contact exact at the step's end). The one unknown scalar T is solved
-by Newton on the free modes (a few vector operations), then the whole step is taken at it; if
-its contact moved the string, by the secant method on whole steps from there. Damping ratios
-are of the linear frequencies w_n = n pi c.
+first, by Newton on the step's modes with its loads and its probes' and grasps' contact
+(``kirchhoff_tension``: each row's force follows T in the derivative), then the whole step is
+taken at it, once. A tool's contact, which only the whole step solves, may still move the
+string off that T: then the secant method on whole steps from there. With numba installed, a
+step with at most one probe or grasp is solved by one compiled loop of the same arithmetic
+(``kirchhoff_kernel``). Damping ratios are of the linear frequencies w_n = n pi c.
 
 Every mode the lattice resolves is stepped and there is no static correction: the residual
 flexibility of the modes beyond would need the tension too. Units: the problem's.
@@ -32,6 +35,7 @@ flexibility of the modes beyond would need the tension too. Units: the problem's
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
@@ -40,8 +44,15 @@ from numpy.typing import NDArray
 
 from membrane_models.live.engine import ModalEngine
 from membrane_models.live.errors import InvalidEngineSettings, InvalidLoad
+from membrane_models.live.kirchhoff_kernel import (
+    COEFFICIENTS,
+    CONSTANT_ROWS,
+    PARAMETERS,
+    compiled_theta_step,
+)
+from membrane_models.live.kirchhoff_tension import MAX_NEWTON, SETTLED, ContactRows, tension_newton
 from membrane_models.live.options import damping_option, modes_option, refuse_unknown
-from membrane_models.live.stepper import Advanced, ModalState
+from membrane_models.live.stepper import Advanced, ModalState, StepRows
 from membrane_models.live.transition import Transition
 from membrane_models.problems import Problem, StringKirchhoff
 
@@ -60,39 +71,93 @@ KIRCHHOFF_OPTIONS = {
 
 @dataclass(frozen=True)
 class _Constants:
-    """The per-mode constants of the theta step's q1(T) = (N0 - T N1) / (D0 + T D1), with
-    N0 = from_q q0 + from_v v0 + from_force p and N1 = n1 q0 (``_free_tension``)."""
+    """The per-mode constants of the theta step under a tension T, 0 off the kept modes.
 
+    With D = d0 + T d1 (d0 = 1 + theta dt f, d1 = theta^2 dt^2 kappa^2, f = 2 zeta w) and
+    alpha = (1 - theta) / theta, the step's end is
+
+        q1(T) = m / D - alpha q0,   m = from_q q0 + from_v v0 + from_force p,
+
+    p the modal force held over the step, and its transition (``KirchhoffEngine._transition``)
+    is affine in the gain 1 / D with the coefficients below: qq = qq_gain / D - alpha,
+    qv = qv_gain / D, vv = vv_gain / D - alpha, vq = -dt T kappa^2 / D, zoh_v = dt / D,
+    zoh_q = theta dt^2 / D.
+    """
+
+    theta: float
+    alpha: float
     from_q: FloatArray
     from_v: FloatArray
     from_force: FloatArray
-    n1: FloatArray
     d0: FloatArray
     d1: FloatArray
+    minus_alpha: FloatArray  # -alpha on the kept modes
+    qq_gain: FloatArray
+    qv_gain: FloatArray
+    vv_gain: FloatArray
 
     @classmethod
     def of(
         cls, theta: float, dt: float, friction: FloatArray, kappa2: FloatArray, kept: FloatArray
     ) -> _Constants:
+        alpha = (1.0 - theta) / theta
         d0 = 1.0 + theta * dt * friction
-        # N0 = (q0 + (1 - theta) dt v0) D0 + theta dt (v0 (1 - dt f (1 - theta)) + dt p)
-        from_v = (1.0 - theta) * dt * d0 + theta * dt * (1.0 - dt * friction * (1.0 - theta))
+        # the step's own numerator N0 = (q0 + (1 - theta) dt v0) D0 + theta dt (v0 (1 - dt f
+        # (1 - theta)) + dt p), less T theta (1 - theta) dt^2 kappa^2 q0 = T alpha d1 q0: with
+        # T d1 = D - d0 that is m - alpha D q0, m = N0 + alpha d0 q0
+        relaxed = 1.0 - dt * friction * (1.0 - theta)
+        from_v = (1.0 - theta) * dt * d0 + theta * dt * relaxed
+        vv_gain = (relaxed + alpha * d0) * kept
         return cls(
-            from_q=d0 * kept,
+            theta=theta,
+            alpha=alpha,
+            from_q=d0 / theta * kept,
             from_v=from_v * kept,
             from_force=theta * dt * dt * kept,
-            n1=theta * (1.0 - theta) * dt * dt * kappa2,
             d0=d0,
             d1=theta * theta * dt * dt * kappa2,
+            minus_alpha=-alpha * kept,
+            qq_gain=d0 / theta * kept,
+            qv_gain=theta * dt * vv_gain,
+            vv_gain=vv_gain,
         )
 
-    def numerator(self, q0: FloatArray, v0: FloatArray, force: FloatArray) -> FloatArray:
-        """N0 of the step from (q0, v0) under a held modal ``force``."""
-        return np.asarray(self.from_q * q0 + self.from_v * v0 + self.from_force * force)
+    def numerator(self, q0: FloatArray, v0: FloatArray, force: FloatArray | None) -> FloatArray:
+        """m of the step from (q0, v0) under a held modal ``force`` (None: none)."""
+        m = self.from_q * q0
+        m += self.from_v * v0
+        if force is not None:
+            m += self.from_force * force
+        return np.asarray(m)
 
-    def denominator(self, tension: float) -> FloatArray:
-        """D0 + T D1."""
-        return np.asarray(self.d0 + tension * self.d1)
+
+@dataclass(frozen=True)
+class _Start:
+    """What a step's tension solve needs of its start: q0, v0, alpha q0 (None: alpha = 0), S0
+    and the guess of the step's tension from the path's Taylor series (no contact)."""
+
+    q0: FloatArray
+    v0: FloatArray
+    alpha_q0: FloatArray | None
+    s0: float
+    guess: float
+
+
+class _Scratch(threading.local):
+    """Per thread and theta, the compiled kernels' workspace (``kirchhoff_kernel``: the rows
+    they write a step's transition to, then the constants) and the ``Transition`` over its
+    first rows: read by that step's ``advance`` alone (its results are new arrays), so each
+    step of a thread may write them again."""
+
+    def __init__(self, packed: dict[float, FloatArray], zeros: FloatArray) -> None:
+        self.workspaces = {theta: self._workspace(c, zeros) for theta, c in packed.items()}
+
+    @staticmethod
+    def _workspace(constants: FloatArray, zeros: FloatArray) -> tuple[FloatArray, Transition]:
+        work = np.zeros((COEFFICIENTS + constants.shape[0], constants.shape[1]))
+        work[COEFFICIENTS:] = constants
+        qq, qv, vq, vv, zoh_q, zoh_v = (work[j, : zeros.size] for j in range(COEFFICIENTS))
+        return work, Transition(qq, qv, vq, vv, zoh_q, zoh_v, zeros, zeros, zeros, zeros)
 
 
 class KirchhoffEngine(ModalEngine):
@@ -101,6 +166,9 @@ class KirchhoffEngine(ModalEngine):
     Args:
         problem: a ``StringKirchhoff`` (its ``c`` and ``stretch`` k are used).
         lattice, dt, damping, modes: as ``ModalEngine``'s (zero-order hold only).
+        compiled: step by the compiled kernel (``kirchhoff_kernel``; default: when numba is
+            installed); False takes the numpy path (the reference the kernel is tested
+            against).
 
     Raises:
         InvalidEngineSettings: a setting out of range.
@@ -114,6 +182,7 @@ class KirchhoffEngine(ModalEngine):
         *,
         damping: float = 0.0,
         modes: int | None = None,
+        compiled: bool | None = None,
     ) -> None:
         super().__init__(problem, lattice, dt, damping=damping, modes=modes,
                          step_limit=None, static_correction=False)  # fmt: skip
@@ -124,13 +193,22 @@ class KirchhoffEngine(ModalEngine):
         kept = self.modes.kept
         self._wavenumber2 = np.where(kept, (omega / float(problem.c)) ** 2, 0.0)
         self._friction = np.where(kept, 2.0 * np.asarray(self.damping) * omega, 0.0)
+        self._damped = bool(self._friction.any())
         self._kept = kept.astype(np.float64)
         self._constants = {theta: _Constants.of(theta, self.dt, self._friction, self._wavenumber2,
                                                 self._kept) for theta in (0.5, 1.0)}  # fmt: skip
+        self._kernels = compiled_theta_step() if compiled is None or compiled else None
+        packed = {theta: self._pack(c) for theta, c in self._constants.items()}
+        self._scratch = _Scratch(packed, self._zeros)
+
+    @property
+    def compiled(self) -> bool:
+        """Whether its steps are solved by the compiled kernels (``kirchhoff_kernel``)."""
+        return self._kernels is not None
 
     def stretch(self, q: FloatArray) -> float:
         """S = sum (n pi)^2 q_n^2 / 2."""
-        return 0.5 * float(np.vdot(self._wavenumber2, q * q))
+        return 0.5 * float(np.dot(self._wavenumber2 * q, q))
 
     def tension(self, state: ModalState) -> float:
         """c^2 + k S at ``state``."""
@@ -154,38 +232,127 @@ class KirchhoffEngine(ModalEngine):
         }
 
     def _solve_step(
-        self, state: ModalState, advance: Callable[[Transition], Advanced], constrained: bool
+        self,
+        state: ModalState,
+        advance: Callable[[Transition], Advanced],
+        constrained: bool,
+        rows: Callable[[], StepRows] | None = None,
     ) -> Advanced:
-        """The step's tension (module docstring): solved by Newton on the free modes with the
-        loads' modal force held (a few vector operations), then the whole step taken at it;
-        if its contact moved the string, the secant on the whole step's miss from there."""
-        theta = 1.0 if constrained else 0.5
-        q0, v0 = state.q, state.v
-        s0 = self.stretch(q0)
-        rate = float(np.vdot(self._wavenumber2, q0 * v0))  # dS/dt
-        guess = self.c2 + self.k * (s0 + theta * self.dt * rate)
-        # held: the loads' modal force the last step ended with (its contact's, a grasp's above
-        # all, follows the tension too closely to be a better guess: measured, it costs a step)
-        tension = self._free_tension(theta, q0, v0, s0, state.load_force, guess)
-        found = advance(self._transition(theta, tension))
-        miss = self._miss(theta, tension, s0, found[0])
+        """The step's tension (module docstring): solved by Newton on the step's modes with
+        its loads and contact rows (scalars and a few vector operations, or one compiled loop),
+        then the whole step taken at it; if that missed (a tool's contact, which only the whole
+        step solves, or a contact whose rows changed on the way), the secant on whole steps."""
+        c = self._constants[1.0 if constrained else 0.5]
+        inputs = rows() if rows is not None else None
+        force = state.load_force if inputs is None else inputs.load_force
+        held = None if force is self._zeros else force
+        kernels = self._kernels
+        if kernels is not None and (inputs is None or len(inputs.depths) <= 1):
+            work, transition = self._scratch.workspaces[c.theta]
+            if inputs is not None and inputs.depths:
+                row = (float(inputs.held[0]), inputs.depths[0], inputs.offsets[0],
+                       inputs.residual[0][0], inputs.scale)  # fmt: skip
+                tension, s0, miss = kernels[2](state.q, state.v, force, work, inputs.shapes[0],
+                                               np.array(row))  # fmt: skip
+            elif held is not None:
+                tension, s0, miss = kernels[1](state.q, state.v, force, work)
+            else:
+                tension, s0, miss = kernels[0](state.q, state.v, work)
+            found = advance(transition)
+            if inputs is None or inputs.depths:  # the whole step's contact decides
+                miss = self._miss(c, tension, s0, found[0])
+        else:
+            start = self._start(c, state, held)
+            tension, s0 = self._tension(c, start, held, inputs), start.s0
+            found = advance(self._transition(c, tension))
+            miss = self._miss(c, tension, s0, found[0])
         if abs(miss) <= _TOLERANCE * tension:
             return found
-        # then the tension of the free step under the force that step's contact added (held),
-        # and from there the secant on whole steps (a grasp's force follows the tension
-        # closely, so holding it alone converges slowly)
-        c = self._constants[theta]
-        gain = c.from_force / c.denominator(tension)  # dq1 / dp of each kept mode
-        free = c.numerator(q0, v0, state.load_force) - tension * c.n1 * q0
-        free /= c.denominator(tension)
+        return self._secant(c, self._start(c, state, held), force, tension, miss, found, advance)
+
+    def _pack(self, c: _Constants) -> FloatArray:
+        """The kernels' per-theta constants: ``kirchhoff_kernel.CONSTANT_ROWS`` and a last row
+        that starts with the scalars (``PARAMETERS``)."""
+        arrays = {"kappa2": self._wavenumber2, "kept": self._kept, "friction": self._friction}
+        rows = [arrays[name] if name in arrays else getattr(c, name) for name in CONSTANT_ROWS]
+        scalars = {"c2": self.c2, "k": self.k, "theta": c.theta, "alpha": c.alpha, "dt": self.dt,
+                   "settled": SETTLED, "max_newton": float(MAX_NEWTON)}  # fmt: skip
+        packed = np.zeros((len(rows) + 1, max(self._kept.size, len(PARAMETERS))))
+        packed[: len(rows), : self._kept.size] = rows
+        packed[len(rows), : len(PARAMETERS)] = [scalars[name] for name in PARAMETERS]
+        return _read_only(packed)
+
+    def _start(self, c: _Constants, state: ModalState, force: FloatArray | None) -> _Start:
+        """The start's stretch and the guess T ~ c^2 + k (S0 + theta (dt S' + dt^2 S'' / 2))
+        (the mean stretch over the trapezoid, the end's for backward Euler), S' and S'' from
+        the free modes: q'' = p - f q' - T0 kappa^2 q."""
+        q0, v0, kappa2 = state.q, state.v, self._wavenumber2
+        kq = kappa2 * q0
+        s0 = 0.5 * float(np.dot(kq, q0))
+        rate = float(np.dot(kq, v0))
+        tension0 = self.c2 + self.k * s0
+        second = float(np.dot(kappa2 * v0, v0)) - tension0 * float(np.dot(kq, kq))
+        if force is not None:
+            second += float(np.dot(kq, force))
+        if self._damped:
+            second -= float(np.dot(kq, self._friction * v0))
+        dt = self.dt
+        guess = self.c2 + self.k * (s0 + c.theta * dt * (rate + 0.5 * dt * second))
+        alpha_q0 = c.alpha * q0 if c.alpha else None
+        return _Start(q0, v0, alpha_q0, s0, guess)
+
+    def _tension(
+        self,
+        c: _Constants,
+        start: _Start,
+        force: FloatArray | None,
+        rows: StepRows | None,
+        guess: float | None = None,
+    ) -> float:
+        """T = c^2 + k ((1 - theta) S0 + theta S1(T)) by Newton, S1 of q1(T) = m / D - alpha q0
+        (``_Constants``) less the rows' contact (``tension_newton``); ``guess`` else the
+        start's."""
+        return tension_newton(
+            c2=self.c2,
+            k=self.k,
+            kappa2=self._wavenumber2,
+            theta=c.theta,
+            d0=c.d0,
+            d1=c.d1,
+            kept=self._kept,
+            m=c.numerator(start.q0, start.v0, force),
+            alpha_q0=start.alpha_q0,
+            s0=start.s0,
+            contact=None if rows is None or not rows.depths else ContactRows.of(rows, c.from_force),
+            guess=start.guess if guess is None else guess,
+        )
+
+    def _secant(
+        self,
+        c: _Constants,
+        start: _Start,
+        force: FloatArray,
+        tension: float,
+        miss: float,
+        found: Advanced,
+        advance: Callable[[Transition], Advanced],
+    ) -> Advanced:
+        """The secant on whole steps from a whole step at ``tension`` that missed: first the
+        tension with the force that step's contact added held, then the secant (a grasp's force
+        follows the tension closely, so holding it alone converges slowly)."""
+        gain = c.from_force / (c.d0 + tension * c.d1)  # dq1 / dp of each kept mode
+        m = c.numerator(start.q0, start.v0, force)
+        free = m * self._kept / (c.d0 + tension * c.d1)
+        if start.alpha_q0 is not None:
+            free -= start.alpha_q0
         contact = (found[0] - free) / np.where(self._kept > 0.0, gain, 1.0)
         previous, previous_miss = tension, miss
-        tension = self._free_tension(theta, q0, v0, s0, state.load_force + contact, tension)
+        tension = self._tension(c, start, force + contact, None, guess=tension)
         for _ in range(_MAX_EVALUATIONS):
             if not (math.isfinite(tension) and tension > 0.0):
                 break
-            found = advance(self._transition(theta, tension))
-            miss = self._miss(theta, tension, s0, found[0])
+            found = advance(self._transition(c, tension))
+            miss = self._miss(c, tension, start.s0, found[0])
             if abs(miss) <= _TOLERANCE * tension:
                 return found
             slope = (miss - previous_miss) / (tension - previous)
@@ -195,59 +362,41 @@ class KirchhoffEngine(ModalEngine):
             "this step's tension did not converge: its loads or depths stretch the string too far"
         )
 
-    def _free_tension(
-        self,
-        theta: float,
-        q0: FloatArray,
-        v0: FloatArray,
-        s0: float,
-        force: FloatArray,
-        guess: float,
-    ) -> float:
-        """T = c^2 + k ((1 - theta) S0 + theta S1(T)) for the free step under ``force``, by
-        Newton on q1(T) = (N0 - T N1) / (D0 + T D1) per mode (``_transition``'s step)."""
-        c = self._constants[theta]
-        kappa2 = self._wavenumber2
-        n0, n1 = c.numerator(q0, v0, force), c.n1 * q0
-        tension = guess
-        for _ in range(_MAX_EVALUATIONS):
-            denominator = c.denominator(tension)
-            q1 = (n0 - tension * n1) / denominator
-            dq = -(n1 + q1 * c.d1) / denominator
-            s1 = 0.5 * float(np.vdot(kappa2, q1 * q1))
-            miss = self.c2 + self.k * ((1.0 - theta) * s0 + theta * s1) - tension
-            slope = theta * self.k * float(np.vdot(kappa2, q1 * dq)) - 1.0
-            change = -miss / slope
-            tension += change
-            if abs(change) <= _TOLERANCE * tension:
-                return tension
-        return tension  # the whole step's check decides
-
-    def _miss(self, theta: float, tension: float, s0: float, q1: FloatArray) -> float:
+    def _miss(self, c: _Constants, tension: float, s0: float, q1: FloatArray) -> float:
         """c^2 + k ((1 - theta) S0 + theta S1) - T: zero at the step's tension."""
+        theta = c.theta
         return self.c2 + self.k * ((1.0 - theta) * s0 + theta * self.stretch(q1)) - tension
 
-    def _transition(self, theta: float, tension: float) -> Transition:
+    def _transition(self, c: _Constants, tension: float) -> Transition:
         """The theta step of every kept mode under ``tension`` (module docstring): 1/2 the
-        trapezoid, 1 backward Euler."""
-        dt, c = self.dt, self._constants[theta]
-        gain = self._kept / c.denominator(tension)
-        vq = -dt * tension * self._wavenumber2 * gain
-        vv = (1.0 - dt * self._friction * (1.0 - theta) - tension * c.n1) * gain
+        trapezoid, 1 backward Euler; its coefficients affine in the gain 1 / D
+        (``_Constants``)."""
+        dt = self.dt
+        gain = self._kept / (c.d0 + tension * c.d1)
+        qq = c.qq_gain * gain
+        vv = c.vv_gain * gain
+        if c.alpha:
+            qq += c.minus_alpha
+            vv += c.minus_alpha
         zoh_v = dt * gain
         zeros = self._zeros
         return Transition(
-            qq=self._kept + theta * dt * vq,
-            qv=((1.0 - theta) * dt) * self._kept + theta * dt * vv,
-            vq=vq,
+            qq=qq,
+            qv=c.qv_gain * gain,
+            vq=(-dt * tension) * self._wavenumber2 * gain,
             vv=vv,
-            zoh_q=theta * dt * zoh_v,
+            zoh_q=(c.theta * dt) * zoh_v,
             zoh_v=zoh_v,
             foh0_q=zeros,
             foh0_v=zeros,
             foh1_q=zeros,
             foh1_v=zeros,
         )
+
+
+def _read_only(array: FloatArray) -> FloatArray:
+    array.setflags(write=False)
+    return array
 
 
 def build_kirchhoff_engine(

@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Generic
+from typing import Any, Generic, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -84,7 +84,7 @@ from membrane_models.live.projection import MAX_SHAPE_VALUE
 from membrane_models.live.tools import ToolPoints, tool_points, tool_readings
 from membrane_models.live.transition import Transition, transition
 
-__all__ = ["Advanced", "ModalState", "ModalStepper"]
+__all__ = ["Advanced", "ModalState", "ModalStepper", "StepRows"]
 
 FloatArray = NDArray[np.float64]
 # A step's end before it is checked and kept: q, v, the loads' modal force, and its contact.
@@ -118,6 +118,34 @@ class ModalState:
     load_force: FloatArray
     applied: tuple[tuple[Any, float], ...] = ()
     owner: object = field(default=None, repr=False, compare=False)
+
+
+class StepRows(NamedTuple):
+    """A step's inputs as its modes see them, for an engine that solves for its step's end
+    (``ModalStepper._solve_step``), with the contact as ``_contact`` solves it at the end.
+
+    Row j (a probe or grasp on the domain) reads z_j = scale s_j . q + offsets_j
+    - sum_k residual_jk F_k at the step's end, F_k the rows' forces (along -axis). A probe keeps
+    z_j <= -depths_j with F_j >= 0 (complementary), a grasp holds z_j = -depths_j (F_j of either
+    sign); F pushes the modes by -sum F_j s_j over the step.
+
+    Attributes:
+        load_force: the loads' modal force at the step's end (held over it: zero-order hold).
+        shapes: each row's modal force per unit force s_j (on the mode box).
+        depths: d_j per row (a grasp's: minus its height).
+        held: which rows are grasps.
+        offsets: the loads' static correction under each row (0 without it).
+        residual: the static correction's compliance between the rows (0 without it).
+        scale: the basis's weight.
+    """
+
+    load_force: FloatArray
+    shapes: tuple[FloatArray, ...]
+    depths: tuple[float, ...]
+    held: tuple[bool, ...]
+    offsets: tuple[float, ...]
+    residual: tuple[tuple[float, ...], ...]
+    scale: float
 
 
 class ModalStepper(Generic[FootprintT]):
@@ -275,8 +303,12 @@ class ModalStepper(Generic[FootprintT]):
             )
             return q, v, p1, found
 
+        def rows() -> StepRows:
+            grasps = len(held)
+            return self._step_rows(load_prints, load_forces, checked_probes, probe_prints, grasps)
+
         constrained = bool(checked_probes)  # probes and grasps
-        q, v, p1, (readings, contact) = self._solve_step(state, advance, constrained)
+        q, v, p1, (readings, contact) = self._solve_step(state, advance, constrained, rows)
         done = self._work(p1, contact, q, state.q) if work and self.hold == "zoh" else None
         applied: list[tuple[Any, float]] = [*zip(load_prints, load_forces, strict=True)]
         for fp, reading in zip(probe_prints, readings, strict=True):
@@ -309,7 +341,10 @@ class ModalStepper(Generic[FootprintT]):
         def advance(tr: Transition) -> Advanced:
             return (*self._free_step(state, load_prints, load_forces, tr), None)
 
-        q = self._solve_step(state, advance, False)[0]
+        def rows() -> StepRows:
+            return self._step_rows(load_prints, load_forces, (), (), 0)
+
+        q = self._solve_step(state, advance, False, rows)[0]
         from_loads = basis.loads_residual(load_prints, load_forces)
         scale, modal_force = self._scale, basis.modal_force
         return tuple(
@@ -367,13 +402,45 @@ class ModalStepper(Generic[FootprintT]):
         return StepResult(new, self.frame(new) if frame else None, (), done, (), readings)
 
     def _solve_step(
-        self, state: ModalState, advance: Callable[[Transition], Advanced], constrained: bool
+        self,
+        state: ModalState,
+        advance: Callable[[Transition], Advanced],
+        constrained: bool,
+        rows: Callable[[], StepRows] | None = None,
     ) -> Advanced:
         """The step's end from ``state``: ``advance`` (the free step and its contact) over
         this core's transition (``constrained``: the step takes probes, grasps or tools). An
         engine whose step depends on its end (the nonlinear string's tension,
-        ``live.kirchhoff``) solves for it here."""
+        ``live.kirchhoff``) solves for it here, from the step's ``rows`` where given (None:
+        a step with tools, whose contact only ``advance`` solves)."""
         return advance(self.transition)
+
+    def _step_rows(
+        self,
+        load_prints: Sequence[FootprintT],
+        load_forces: Sequence[float],
+        probes: Sequence[Probe],
+        prints: Sequence[FootprintT | None],
+        grasps: int,
+    ) -> StepRows:
+        """The step's ``StepRows`` (the last ``grasps`` probes are grasps), as ``_contact``
+        builds its problem."""
+        load_force = self._modal_force(load_prints, load_forces)
+        rows = [(j, pr, fp) for j, (pr, fp) in enumerate(zip(probes, prints, strict=True)) if fp]
+        if not rows:
+            return StepRows(load_force, (), (), (), (), (), self._scale)
+        basis = self.basis
+        footprints = [fp for _, _, fp in rows]
+        from_loads = basis.loads_residual(load_prints, load_forces)
+        return StepRows(
+            load_force=load_force,
+            shapes=tuple(basis.modal_force(fp) for fp in footprints),
+            depths=tuple(pr.depth for _, pr, _ in rows),
+            held=tuple(j >= len(probes) - grasps for j, _, _ in rows),
+            offsets=tuple(from_loads(fp) for fp in footprints),
+            residual=tuple(tuple(basis.cross(a, b) for b in footprints) for a in footprints),
+            scale=self._scale,
+        )
 
     def _free_q(
         self, state: ModalState, p1: FloatArray, loaded: bool, tr: Transition

@@ -9,7 +9,7 @@ import pytest
 from membrane_models.exact.kirchhoff_carrier import KirchhoffString, solve_kirchhoff
 from membrane_models.live import ModalEngine
 from membrane_models.live.errors import InvalidEngineSettings
-from membrane_models.live.interface import Grasp, Probe, Tool
+from membrane_models.live.interface import Grasp, Load, Probe, Tool
 from membrane_models.live.kirchhoff import KirchhoffEngine, build_kirchhoff_engine
 from membrane_models.problems import StringKirchhoff, make_problem
 
@@ -100,3 +100,64 @@ def test_it_is_built_for_its_problem_only() -> None:
     engine = build_kirchhoff_engine(StringKirchhoff(), (130,), 1e-3, {"damping": 0.01})
     assert engine.describe()["engine"] == "kirchhoff"
     assert engine.describe()["stretch"] == 100.0
+
+
+class _Counted(KirchhoffEngine):
+    """The engine with its whole steps counted (each ``advance`` its ``_solve_step`` takes)."""
+
+    whole_steps = 0
+
+    def _solve_step(self, state, advance, constrained, rows=None):  # type: ignore[no-untyped-def]
+        def counted(tr):  # type: ignore[no-untyped-def]
+            self.whole_steps += 1
+            return advance(tr)
+
+        return super()._solve_step(state, counted, constrained, rows)
+
+
+def _inputs(i: int) -> dict[str, list[object]]:
+    """A haptic loop's inputs, changing every step: free, a load, a probe, grasps and a probe."""
+    steps: list[dict[str, list[object]]] = [
+        {},
+        {"loads": [Load((0.3,), 2.0 * np.sin(i / 20), 0.02)]},
+        {"probes": [Probe((0.3 + 0.2 * np.sin(i / 50),), 0.03 * np.sin(i / 30), 0.02)]},
+        {"grasps": [Grasp((0.3,), 0.02, 0.02)]},
+        {"grasps": [Grasp((0.3,), 0.02, 0.02), Grasp((0.7,), -0.01 * np.cos(i / 40), 0.0)],
+         "probes": [Probe((0.5,), 0.005, 0.0)], "loads": [Load((0.2,), 0.3, 0.02)]},
+    ]  # fmt: skip
+    return steps[(i // 40) % 5]
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_tension_is_solved_with_the_contact_before_the_whole_step(compiled: bool) -> None:
+    # loads, probes and grasps enter the tension's Newton (their rows), so each step takes
+    # one whole step: the secant on whole steps is left to tools
+    if compiled:
+        pytest.importorskip("numba")
+    engine = _Counted(StringKirchhoff(), 130, 1e-3, damping=0.01, compiled=compiled)
+    state = engine.start(_shape()).state
+    for i in range(400):
+        state = engine.step(state, frame=False, **_inputs(i)).state  # type: ignore[arg-type]
+    assert engine.whole_steps == 400
+
+
+def test_the_compiled_kernel_steps_as_numpy_does_to_rounding() -> None:
+    pytest.importorskip("numba")
+    for damping in (0.0, 0.02):
+        compiled = KirchhoffEngine(StringKirchhoff(), 130, 1e-3, damping=damping, compiled=True)
+        reference = KirchhoffEngine(StringKirchhoff(), 130, 1e-3, damping=damping,
+                                    compiled=False)  # fmt: skip
+        state = compiled.start(_shape()).state
+        worst = 0.0
+        for i in range(400):
+            inputs = _inputs(i)
+            ours = compiled.step(state, frame=False, **inputs).state  # type: ignore[arg-type]
+            same = reference.start(_shape()).state.__class__(
+                state.step, state.time, state.q, state.v, state.load_force, state.applied,
+                reference._owner,  # the same start for the numpy path's step
+            )  # fmt: skip
+            theirs = reference.step(same, frame=False, **inputs).state  # type: ignore[arg-type]
+            scale = float(np.abs(ours.q).max())
+            worst = max(worst, float(np.abs(ours.q - theirs.q).max()) / scale)
+            state = ours
+        assert worst < 1e-14  # measured 5e-16: the same expressions, sums in another order
