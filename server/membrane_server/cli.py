@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 from membrane_cli.arguments import bounded_float, bounded_int
 from membrane_client.client import DEFAULT_ADDRESS as DEFAULT_BIND
+from membrane_client.protocol import MAX_BATCH_STEPS
 
 if TYPE_CHECKING:  # annotations only: importing these at run time is the handler's job
     import zmq
@@ -67,6 +68,14 @@ def add_serve(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -
         metavar="US",
         help="after each reply, poll without sleeping for this long (up to 100000): faster "
         "replies at haptic rates, for a core while clients are active (default 0)",
+    )
+    parser.add_argument(
+        "--max-batch",
+        type=bounded_int(1, MAX_BATCH_STEPS),
+        default=MAX_BATCH_STEPS,
+        metavar="N",
+        help=f"answer up to N queued requests together, their steps of loads stepped as one "
+        f"operation (default {MAX_BATCH_STEPS}; 1: each alone, no reply waits for the others')",
     )
     parser.add_argument(
         "--blas-threads",
@@ -191,6 +200,7 @@ def _serve_workers(scenes: list[str], args: argparse.Namespace) -> int:
     for flag, value in (
         ("--threads", args.threads), ("--peer-budget", args.peer_budget),
         ("--spin-us", args.spin_us), ("--blas-threads", args.blas_threads),
+        ("--max-batch", args.max_batch),
         ("--max-sessions", args.max_sessions),
         ("--max-sessions-per-peer", args.max_sessions_per_peer),
         ("--session-idle-s", args.session_idle_s), ("--curve-secret", args.curve_secret),
@@ -292,6 +302,7 @@ def _serve(
             socket_options=options,
             peer_budget=args.peer_budget or DEFAULT_PEER_BUDGET,
             spin=args.spin_us / 1e6,
+            max_batch=args.max_batch,
             sessions=SessionTable(
                 args.max_sessions,
                 args.session_idle_s,

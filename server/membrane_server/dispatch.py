@@ -10,7 +10,7 @@ from __future__ import annotations
 import functools
 import logging
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any, NamedTuple
 
 from membrane_cli.dispatcher import version
@@ -124,15 +124,47 @@ class Dispatcher:
         value a client sent is formatted whole into a reply or a log line (``preview``): the
         checks are ``protocol.Request.from_wire``'s, the schema's owner.
         """
+        decoded = self._decode(body)
+        if isinstance(decoded, Answer):
+            return decoded
+        return self._answer(decoded, peer)
+
+    def handle_many(self, requests: Sequence[tuple[Sequence[bytes], str]]) -> Iterator[Answer]:
+        """Answer requests already queued (each its payload frames and peer), in order, as
+        ``handle`` would one by one, each answer given as soon as it is made (the caller sends
+        it before the next is made: no more replies are held at once than a run's). Never
+        raises.
+
+        A run of ``step`` requests is answered together (``LiveOps.step_run``): the steps of
+        loads alone on one engine are stepped as one operation, each still the step it stands
+        for. Any other request ends the run first, so that it sees every step before it.
+        """
+        run: list[Request] = []
+        peers: list[str] = []
+        for body, peer in requests:
+            decoded = self._decode(body)
+            if isinstance(decoded, Request) and decoded.op == Op.STEP:
+                run.append(decoded)
+                peers.append(peer)
+                continue
+            yield from self._step_run(run, peers)
+            run, peers = [], []
+            yield decoded if isinstance(decoded, Answer) else self._answer(decoded, peer)
+        yield from self._step_run(run, peers)
+
+    def _decode(self, body: Sequence[bytes]) -> Request | Answer:
+        """The request in ``body``, or the error answer to it."""
         if len(body) != 1:
             reason = f"expected one payload frame, got {len(body)}"
             return self._error(None, ErrorCode.BAD_MESSAGE, reason)
         try:
-            request = Request.from_wire(body[0])
+            return Request.from_wire(body[0])
         except RequestError as exc:
             envelope = exc.request  # op and session are recorded once the envelope is valid
             op, session = (None, None) if envelope is None else (envelope.op, envelope.session)
             return self._error(exc.request_id, exc.code, str(exc), op, session)
+
+    def _answer(self, request: Request, peer: str) -> Answer:
         try:
             if request.op in _LIVE_OPS:
                 fields: dict[str, Any] | Prepared | bytes = _LIVE_OPS[request.op](
@@ -147,12 +179,31 @@ class Dispatcher:
         except RequestError as exc:
             return self._error(request.id, exc.code, str(exc), request.op, request.session)
         except Exception as exc:  # a bug must cost one reply, never the server
-            logger.exception("internal error answering op %s", request.op)
-            reason = f"the server failed answering this request: {type(exc).__name__}"
-            return self._error(
-                request.id, ErrorCode.INTERNAL_ERROR, reason, request.op, request.session
-            )
+            return self._failed(request, exc)
         return Answer(reply, request.op, None, None, request.session)
+
+    def _step_run(self, run: Sequence[Request], peers: Sequence[str]) -> list[Answer]:
+        if len(run) <= 1:
+            return [self._answer(request, peer) for request, peer in zip(run, peers, strict=True)]
+        try:
+            found = self._live.step_run(list(zip(run, peers, strict=True)))
+        except Exception as exc:  # a bug costs the run's replies, never the server
+            return [self._failed(request, exc) for request in run]
+        answers = []
+        for request, answer in zip(run, found, strict=True):
+            if isinstance(answer, RequestError):
+                code, reason = answer.code, str(answer)
+                answers.append(self._error(request.id, code, reason, request.op, request.session))
+            else:
+                answers.append(Answer(answer, request.op, None, None, request.session))
+        return answers
+
+    def _failed(self, request: Request, exc: Exception) -> Answer:
+        logger.error("internal error answering op %s", request.op, exc_info=exc)
+        reason = f"the server failed answering this request: {type(exc).__name__}"
+        return self._error(
+            request.id, ErrorCode.INTERNAL_ERROR, reason, request.op, request.session
+        )
 
     def _scene(self, request: Request) -> ServedScene:
         return find_scene(self.scenes, self._only, request)

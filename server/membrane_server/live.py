@@ -17,8 +17,8 @@ is one of its reply forms.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, cast
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
 import numpy as np
 
@@ -46,6 +46,7 @@ from membrane_client.protocol import (
     preview,
 )
 from membrane_models.live import (
+    BatchedEngine,
     BoundedEngine,
     Grasp,
     GraspReading,
@@ -203,6 +204,65 @@ class LiveOps:
         return reply
 
     def step(self, request: Request, peer: str = "") -> bytes:
+        taken = self._take(request, peer)
+        if isinstance(taken, bytes):
+            return taken  # a re-send, answered from the store
+        return self._step_one(taken)
+
+    def steps(self, request: Request, peer: str = "") -> dict[str, Any]:
+        """Several sessions' steps in one request (``steps``, a client of many environments):
+        each item is the ``step`` it stands for (its own session, k and token: taken exactly
+        once, a re-send answered from its store), answered in order with that step's reply
+        bytes, an error reply where the item was refused; a refused item stops no other.
+        Items of loads alone are stepped together (``step_run``)."""
+        assert request.steps is not None
+        items: list[tuple[Request, str] | RequestError] = []
+        for item in request.steps:
+            try:
+                items.append((Request.step_item(item, request.id, request.scene), peer))
+            except RequestError as exc:
+                items.append(exc)
+        answers = self.step_run([item for item in items if not isinstance(item, RequestError)])
+        found = iter(answers)
+        replies: list[bytes] = []
+        for index, item in enumerate(items):
+            answer = item if isinstance(item, RequestError) else next(found)
+            if isinstance(answer, RequestError):
+                reason = f"steps item {index}: {answer}"
+                answer = encode(error_reply(request.id, answer.code, reason))
+            replies.append(answer)
+        return {"steps": replies}
+
+    def step_run(self, requests: Sequence[tuple[Request, str]]) -> list[bytes | RequestError]:
+        """``step`` requests (each with its peer) answered in order, as if one by one: the steps
+        of loads alone on an engine that batches (``BatchedEngine``) are gathered and stepped as
+        one operation per engine, until a session comes a second time (its next step needs the
+        first's end) or the run ends. Each answer is the reply's bytes or the refusal."""
+        answers: list[bytes | RequestError | None] = [None] * len(requests)
+        batches: dict[int, list[tuple[int, _Taken]]] = {}
+        gathered: set[str] = set()
+        for index, (request, peer) in enumerate(requests):
+            if request.session in gathered:
+                self._flush(batches, answers)
+                gathered.clear()
+            try:
+                taken = self._take(request, peer)
+                if isinstance(taken, bytes) or not taken.batchable:
+                    answers[index] = taken if isinstance(taken, bytes) else self._step_one(taken)
+                    continue
+            except RequestError as exc:
+                answers[index] = exc
+                continue
+            batches.setdefault(id(taken.engine), []).append((index, taken))
+            gathered.add(taken.session_id)
+        self._flush(batches, answers)
+        done = [a for a in answers if a is not None]
+        assert len(done) == len(requests), "a step neither answered nor refused"
+        return done
+
+    def _take(self, request: Request, peer: str) -> bytes | _Taken:
+        """A step request checked against its session (k, a re-send, what the engine takes),
+        its inputs read: ready to step, or the stored reply of a re-send."""
         session = self._session(request, peer)
         k = request.k
         if k != session.k:
@@ -227,37 +287,54 @@ class LiveOps:
         loads, probes, grasps, tools = engine_inputs(request, engine.spatial_dims)
         if request.strict:
             _require_inside(engine, loads, probes, grasps, tools)
-        held = _held(grasps, tools)
         if request.lookahead and (grasps or tools):
             raise RequestError(
                 ErrorCode.BAD_REQUEST, "'lookahead' is for steps of loads and probes only"
             )
+        return _Taken(request, session, engine, loads, probes, _held(grasps, tools))
+
+    def _step_one(self, taken: _Taken) -> bytes:
+        request, session, engine = taken.request, taken.session, taken.engine
         try:
-            result = _steps(engine, session.state, request, loads, probes, held)
+            result = _steps(engine, session.state, request, taken.loads, taken.probes, taken.held)
         except LiveError as exc:
             raise wire_error(exc) from None
-        ahead = _lookahead(engine, result.state, loads, probes) if request.lookahead else None
-        session.apply(result, request.repeat)
-        self.table.counts["steps"] += request.repeat
+        ahead = None
+        if request.lookahead:
+            ahead = _lookahead(engine, result.state, taken.loads, taken.probes)
+        return self._took(taken, result, request.repeat, ahead)
+
+    def _flush(
+        self,
+        batches: dict[int, list[tuple[int, _Taken]]],
+        answers: list[bytes | RequestError | None],
+    ) -> None:
+        """Step each engine's gathered steps as one operation and answer them."""
+        for batch in batches.values():
+            engine = cast(BatchedEngine, batch[0][1].engine)
+            results = engine.step_loads(
+                [taken.session.state for _, taken in batch],
+                [taken.loads for _, taken in batch],
+                [taken.request.frame for _, taken in batch],
+            )
+            for (index, taken), result in zip(batch, results, strict=True):
+                if isinstance(result, LiveError):
+                    answers[index] = wire_error(result)
+                else:
+                    answers[index] = self._took(taken, result, 1, None)
+        batches.clear()
+
+    def _took(
+        self, taken: _Taken, result: StepResult[Any], repeat: int, ahead: list[float] | None
+    ) -> bytes:
+        """The session takes the step's result; its reply, kept for a re-send."""
+        request, session = taken.request, taken.session
+        session.apply(result, repeat)
+        self.table.counts["steps"] += repeat
         fields = self._state_reply(request, session, result.frame, ahead=ahead).to_reply_fields()
         reply = encode(ok_reply(request.id, **fields))
         session.last_step = Sent(request.token, request.id, reply)
         return reply
-
-    def steps(self, request: Request, peer: str = "") -> dict[str, Any]:
-        """Several sessions' steps in one request (``steps``, a client of many environments):
-        each item is the ``step`` it stands for (its own session, k and token: taken exactly
-        once, a re-send answered from its store), answered in order with that step's reply
-        bytes, an error reply where the item was refused; a refused item stops no other."""
-        assert request.steps is not None
-        replies: list[bytes] = []
-        for index, item in enumerate(request.steps):
-            try:
-                replies.append(self.step(Request.step_item(item, request.id, request.scene), peer))
-            except RequestError as exc:
-                reply = error_reply(request.id, exc.code, f"steps item {index}: {exc}")
-                replies.append(encode(reply))
-        return {"steps": replies}
 
     def read(self, request: Request, peer: str = "") -> bytes:
         session = self._session(request, peer)
@@ -372,6 +449,41 @@ def wire_error(exc: LiveError | LiveInputError, what: str = "") -> RequestError:
     or the live schema's (a wire item's form): ``bad_request`` with its message (both quote
     client values bounded; ``error_reply`` caps the length)."""
     return RequestError(ErrorCode.BAD_REQUEST, f"{what}{exc}")
+
+
+class _Taken(NamedTuple):
+    """A step request checked and read, ready to step."""
+
+    request: Request
+    session: LiveSession
+    engine: LiveEngine[Any]
+    loads: tuple[Load, ...]
+    probes: tuple[Probe, ...]
+    held: dict[str, Any]  # grasps and tools (``_held``)
+
+    @property
+    def session_id(self) -> str:
+        return _session_id(self.request)
+
+    @property
+    def batchable(self) -> bool:
+        """A step of loads alone, once, on an engine that batches (``BatchedEngine``)."""
+        request = self.request
+        plain = not (self.probes or self.held or request.lookahead) and request.repeat == 1
+        return plain and _batches(self.engine)
+
+
+_BATCHES: dict[type, bool] = {}
+
+
+def _batches(engine: object) -> bool:
+    """``isinstance(engine, BatchedEngine)``, answered once per engine class (as
+    ``_looks_ahead``)."""
+    kind = type(engine)
+    answer = _BATCHES.get(kind)
+    if answer is None:
+        answer = _BATCHES[kind] = isinstance(engine, BatchedEngine)
+    return answer
 
 
 def _held(grasps: tuple[Grasp, ...], tools: tuple[Tool, ...]) -> dict[str, Any]:

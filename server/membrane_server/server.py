@@ -37,7 +37,13 @@ from typing import Any
 import zmq
 
 from membrane_client.client import DEFAULT_ADDRESS
-from membrane_client.protocol import MAX_REQUEST_BYTES, ErrorCode, encode, error_reply
+from membrane_client.protocol import (
+    MAX_BATCH_STEPS,
+    MAX_REQUEST_BYTES,
+    ErrorCode,
+    encode,
+    error_reply,
+)
 from membrane_errors import UserError
 from membrane_server.dispatch import Answer, Dispatcher
 from membrane_server.heap import keep_temporaries_in_heap, malloc_trim_function
@@ -51,6 +57,7 @@ __all__ = [
     "DEFAULT_BIND",
     "DEFAULT_IN_FLIGHT",
     "DEFAULT_PEER_BUDGET",
+    "MAX_BATCH",
     "MAX_RETIRED_SCENES",
     "SHUTDOWN_LINGER_MS",
     "BindError",
@@ -106,6 +113,10 @@ MAX_RETIRED_SCENES = 4
 # How often the loop looks after its upkeep (a reload to swap in, peers gone, memory to hand
 # back) while requests keep coming.
 _UPKEEP_S = 0.01
+# The most requests taken from the queue to answer together (their steps batched: a `steps`
+# request's bound), and about the most bytes (64 of the largest requests).
+MAX_BATCH = MAX_BATCH_STEPS
+_MAX_QUEUED_BYTES = 64 * MAX_REQUEST_BYTES
 
 
 class Server:
@@ -124,6 +135,9 @@ class Server:
             for haptic rates, a little more than the clients' period.
         sessions: The live sessions' table (default: 64 sessions, 300 s idle); it outlives
             reloads, so open sessions keep the engine they opened with.
+        max_batch: The most requests taken from the queue at once and answered together (their
+            steps of loads alone stepped as one operation, ``Dispatcher.handle_many``); 1
+            answers each alone: the first of a burst is not held while the rest are stepped.
 
     Raises:
         SceneError, ManifestError: A scene cannot be served (message names the cause).
@@ -141,7 +155,11 @@ class Server:
         spin: float = 0.0,
         sessions: SessionTable | None = None,
         workers: Sequence[str] = (),
+        max_batch: int = MAX_BATCH,
     ) -> None:
+        if not 1 <= max_batch <= MAX_BATCH:
+            raise ValueError(f"max_batch must be between 1 and {MAX_BATCH}, got {max_batch}")
+        self.max_batch = max_batch
         if peer_budget < 1:
             raise ValueError(f"peer_budget must be a positive number of bytes, got {peer_budget}")
         # Scene files first (cheap), so a name clash is reported before any model is loaded.
@@ -487,12 +505,11 @@ class Server:
             busy = self._wait_for_requests(poller)
             # Drain what is queued, checking the stop flag between requests.
             while busy and not self._stop.is_set():
-                try:
-                    frames, peer = self._receive(socket)
-                except zmq.Again:
+                queued = self._receive_queued(socket)
+                if not queued:
                     break
                 try:
-                    self._answer(socket, frames, time.perf_counter(), peer)
+                    self._answer_queued(socket, queued)
                 except Exception:  # one request must never end the loop
                     self.stats.failures += 1
                     _log_failure()
@@ -516,6 +533,50 @@ class Server:
             return frames, f"key:{parts[-1].get('User-Id')}"
         except zmq.ZMQError:  # no metadata (a socket made without the authenticator)
             return frames, "conn:" + frames[0].hex()
+
+    def _receive_queued(self, socket: zmq.Socket[bytes]) -> list[tuple[list[bytes], str, float]]:
+        """The requests waiting now (none is waited for), each with its peer and when it was
+        taken: at most ``max_batch`` of them and about ``_MAX_QUEUED_BYTES``, so that a burst
+        is answered in bounded pieces and memory."""
+        queued: list[tuple[list[bytes], str, float]] = []
+        size = 0
+        while len(queued) < self.max_batch and size < _MAX_QUEUED_BYTES:
+            try:
+                frames, peer = self._receive(socket)
+            except zmq.Again:
+                break
+            queued.append((frames, peer, time.perf_counter()))
+            size += sum(len(frame) for frame in frames)
+        return queued
+
+    def _answer_queued(
+        self, socket: zmq.Socket[bytes], queued: list[tuple[list[bytes], str, float]]
+    ) -> None:
+        """Answer what was queued together (``Dispatcher.handle_many``: its runs of steps of
+        loads alone are stepped as one operation per engine), each reply sent as it would be
+        alone."""
+        if len(queued) == 1:
+            frames, peer, received = queued[0]
+            self._answer(socket, frames, received, peer)
+            return
+        envelopes, requests = [], []
+        for frames, peer, _ in queued:
+            envelope, body = _split_envelope(frames)
+            envelopes.append(envelope)
+            requests.append((body, peer))
+        answers = self.dispatcher.handle_many(requests)
+        for index, (envelope, (_, _, received)) in enumerate(zip(envelopes, queued, strict=True)):
+            try:
+                answer = next(answers)
+            except Exception:  # handle_many() never raises by contract; if it does, the one
+                self.stats.failures += 1  # request is lost to the failure, and the rest are
+                _log_failure()  # answered afresh
+                failed = encode(error_reply(None, ErrorCode.INTERNAL_ERROR, "the server failed"))
+                answer = Answer(failed, None, str(ErrorCode.INTERNAL_ERROR))
+                answers = self.dispatcher.handle_many(requests[index + 1 :])
+            self._send(socket, envelope, answer.reply)
+            took = time.perf_counter() - received
+            self.stats.record(took, answer.op, answer.error, answer.scene, answer.session)
 
     def _upkeep(
         self, socket: zmq.Socket[bytes], now: float, idle: bool, queued: bool = False
@@ -557,10 +618,7 @@ class Server:
     def _answer(
         self, socket: zmq.Socket[bytes], frames: list[bytes], received: float, peer: str = ""
     ) -> None:
-        # ROUTER frames: [peer identity, (empty delimiter from REQ/DEALER-as-REQ), payload...].
-        envelope, body = frames[:1], frames[1:]
-        if body and body[0] == b"":
-            envelope, body = frames[:2], frames[2:]
+        envelope, body = _split_envelope(frames)
         try:
             answer = self.dispatcher.handle(body, peer)
         except Exception:  # handle() never raises by contract; if it does, one reply is lost
@@ -726,6 +784,14 @@ def _disconnect_monitor(socket: zmq.Socket[bytes]) -> zmq.Socket[bytes] | None:
     except (zmq.ZMQError, NotImplementedError) as exc:
         logger.debug("no connection monitor: %s", exc)
         return None
+
+
+def _split_envelope(frames: list[bytes]) -> tuple[list[bytes], list[bytes]]:
+    """ROUTER frames: [peer identity, (empty delimiter from REQ/DEALER-as-REQ), payload...]."""
+    envelope, body = frames[:1], frames[1:]
+    if body and body[0] == b"":
+        envelope, body = frames[:2], frames[2:]
+    return envelope, body
 
 
 def _drain_events(monitor: zmq.Socket[bytes], limit: int = 1000) -> int:

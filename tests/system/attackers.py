@@ -239,14 +239,25 @@ def serve_with_injected_faults() -> None:
     from membrane_cli.dispatcher import main
     from membrane_server.dispatch import Dispatcher
 
-    handle = Dispatcher.handle
+    handle, handle_many = Dispatcher.handle, Dispatcher.handle_many
 
-    def handle_or_fail(self: Dispatcher, body: Sequence[bytes], peer: str = "") -> Any:
+    def fail_if_marked(body: Sequence[bytes]) -> None:
+        """The one place the fault is raised (one kind of traceback, whichever path)."""
         if any(FAULT_MARK in bytes(part) for part in body):
             raise RuntimeError("a fault injected by the test")
+
+    def handle_or_fail(self: Dispatcher, body: Sequence[bytes], peer: str = "") -> Any:
+        fail_if_marked(body)
         return handle(self, body, peer) if peer else handle(self, body)
 
+    def handle_many_or_fail(self: Dispatcher, requests: Sequence[tuple[Any, str]]) -> Any:
+        """Requests answered together: each with the fault fails as it comes."""
+        for body, peer in requests:
+            fail_if_marked(body)
+            yield from handle_many(self, [(body, peer)])
+
     Dispatcher.handle = handle_or_fail  # type: ignore[method-assign]
+    Dispatcher.handle_many = handle_many_or_fail  # type: ignore[method-assign]
     sys.exit(main(sys.argv[1:]))
 
 

@@ -22,6 +22,7 @@ from membrane_models.live.factory import build_modal_engine
 from membrane_models.live.film import film_frames, film_load
 from membrane_models.live.interface import (
     ENGINE_INPUTS,
+    BatchedEngine,
     BoundedEngine,
     Grasp,
     GraspReading,
@@ -39,6 +40,7 @@ from membrane_models.live.interface import (
 
 __all__ = [
     "ENGINE_INPUTS",
+    "BatchedEngine",
     "BoundedEngine",
     "Grasp",
     "GraspReading",

@@ -112,6 +112,10 @@ class ModalBasis(Protocol[FootprintT]):
     def modal_force(self, footprint: FootprintT) -> FloatArray:
         """s on the mode box: the modal force per unit force on ``footprint``."""
 
+    def modal_factors(self, footprint: FootprintT) -> tuple[FloatArray, FloatArray] | None:
+        """``modal_force`` as an outer product x (x) y of per-axis factors on the mode box
+        (a string's y is [1]), which a step builds in its own pass; None where it is not one."""
+
     def own(self, footprint: FootprintT) -> float:
         """The static correction's compliance under ``footprint`` (0 without it)."""
 

@@ -22,9 +22,12 @@ from typing import Any, Generic, Literal, Protocol, TypeVar, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from membrane_models.live.errors import LiveError
+
 __all__ = [
     "ENGINE_INPUTS",
     "TOOL_KINDS",
+    "BatchedEngine",
     "BoundedEngine",
     "Grasp",
     "GraspReading",
@@ -232,6 +235,22 @@ class LookaheadEngine(Protocol):
     ) -> tuple[float, ...]:
         """Per probe, the footprint-weighted displacement at the end of the step from ``state``
         under ``loads`` and no contact (NaN for a probe outside the domain)."""
+
+
+@runtime_checkable
+class BatchedEngine(Protocol):
+    """An engine that steps many sessions' states under loads alone as one operation (the
+    server's batched steps): each result is the step ``step`` takes from that state with those
+    loads, bit for bit, whatever the batch's width."""
+
+    def step_loads(
+        self,
+        states: Sequence[Any],
+        loads: Sequence[Sequence[Load]],
+        frames: Sequence[bool],
+    ) -> list[StepResult[Any] | LiveError]:
+        """Per state, its step under its loads (and its frame where asked), or the error that
+        refused that one (bad input: the others are stepped all the same)."""
 
 
 class LiveEngine(Protocol[StateT]):

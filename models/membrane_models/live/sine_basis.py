@@ -29,6 +29,7 @@ from membrane_models.live.footprint import (
     make_footprint,
 )
 from membrane_models.live.footprint_memo import FootprintMemo
+from membrane_models.live.free_step import one_factor
 from membrane_models.live.inputs import inside_domain
 from membrane_models.live.interface import Load, Probe
 from membrane_models.live.modes import ModeSet
@@ -245,6 +246,13 @@ class SineBasis:
             return footprint.spectra[0][: self._modes.box[0]]
         kx, ky = self._modes.box
         return footprint.spectra[0][:kx, None] * footprint.spectra[1][None, :ky]
+
+    def modal_factors(self, footprint: Footprint) -> tuple[FloatArray, FloatArray]:
+        """``modal_force``'s factors: the spectra cut to the box (the string's second is [1])."""
+        if self._dims == 1:
+            return footprint.spectra[0][: self._modes.box[0]], one_factor()
+        kx, ky = self._modes.box
+        return footprint.spectra[0][:kx], footprint.spectra[1][:ky]
 
     # -- the static correction --------------------------------------------------------------
 

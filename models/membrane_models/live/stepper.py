@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Generic, NamedTuple
+from typing import Any, Generic, NamedTuple, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -53,7 +53,9 @@ from membrane_models.live.errors import (
     InvalidProbe,
     InvalidState,
     InvalidTool,
+    LiveError,
 )
+from membrane_models.live.free_step import FreeStepKernel, stacked_transition
 from membrane_models.live.inputs import (
     MAX_DEPTH,
     MAX_FORCE,
@@ -189,9 +191,10 @@ class ModalStepper(Generic[FootprintT]):
             raise InvalidEngineSettings(f"hold must be 'zoh' or 'foh', got {str(hold)[:20]!r}")
         self.hold: Hold = hold
         self.modes = basis.modes
-        self.transition: Transition = _masked(
-            transition(self.modes.omega, self.damping, self._dt), self.modes.kept
+        self.transition, block = stacked_transition(
+            _masked(transition(self.modes.omega, self.damping, self._dt), self.modes.kept)
         )
+        self._free_kernel = FreeStepKernel(block, hold)
         self.budget = budget if budget is not None else StepBudget()
         self._scale = basis.scale
         self._owner = object()
@@ -286,6 +289,8 @@ class ModalStepper(Generic[FootprintT]):
         self._check(state)
         if tools:
             return self._step_tools(state, loads, tools, probes, grasps, frame, work)
+        if not (probes or grasps or work) and self._fixed_transition:
+            return self._load_step(state, loads, frame)  # what ``step_loads`` does per state
         basis = self.basis
         checked_loads = parse_loads(loads, self._dims, basis.contains) if loads else ()
         checked_probes = parse_probes(probes, self._dims) if probes else ()
@@ -321,6 +326,71 @@ class ModalStepper(Generic[FootprintT]):
         probed = len(readings) - len(held)
         grasped = tuple(_grasp_reading(r) for r in readings[probed:])
         return StepResult(new, self.frame(new) if frame else None, readings[:probed], done, grasped)
+
+    def step_loads(
+        self,
+        states: Sequence[ModalState],
+        loads: Sequence[Sequence[Load]],
+        frames: Sequence[bool],
+    ) -> list[StepResult[ModalState] | LiveError]:
+        """Many states' steps under loads alone, as one operation (``interface.BatchedEngine``):
+        each result is ``step(states[i], loads[i], frame=frames[i])``, bit for bit (a lone
+        ``step`` of loads is this at width one), or the ``LiveError`` that refused it.
+
+        Raises:
+            InvalidState: a state from another engine (a bug of the caller's, not input).
+        """
+        if not self._fixed_transition:
+            triples = zip(states, loads, frames, strict=True)
+            return [self._refused_or_stepped(s, ld, fr) for s, ld, fr in triples]
+        results: list[StepResult[ModalState] | LiveError] = []
+        for state, given, frame in zip(states, loads, frames, strict=True):
+            try:
+                results.append(self._load_step(state, given, frame))
+            except LiveError as refused:
+                results.append(refused)
+        return results
+
+    @property
+    def _fixed_transition(self) -> bool:
+        """Whether every step takes this core's own transition: an engine whose step solves for
+        its end (``_solve_step`` overridden: the nonlinear string) steps its states one by one."""
+        return type(self)._solve_step is ModalStepper._solve_step
+
+    def _refused_or_stepped(
+        self, state: ModalState, loads: Sequence[Load], frame: bool
+    ) -> StepResult[ModalState] | LiveError:
+        try:
+            return self.step(state, loads, frame=frame)
+        except LiveError as refused:
+            return refused
+
+    def _load_step(
+        self, state: ModalState, loads: Sequence[Load], frame: bool
+    ) -> StepResult[ModalState]:
+        """A step under loads alone: the free step in one pass over the modes (``free_step``),
+        its modal force built in that pass where the basis's forces are outer products."""
+        self._check(state)
+        basis, kernel = self.basis, self._free_kernel
+        checked = parse_loads(loads, self._dims, basis.contains) if loads else ()
+        prints = basis.footprints(checked, (), self.budget)[0]
+        forces = [ld.force for ld in checked]
+        q0, v0, p0 = _flat(state.q), _flat(state.v), _flat(state.load_force)
+        factors = [basis.modal_factors(fp) for fp in prints]
+        if all(f is not None for f in factors):
+            free = kernel.separable(q0, v0, p0, cast(list[tuple[Any, Any]], factors), forces)
+        else:
+            p1 = self._modal_force(prints, forces).reshape(-1) if prints else None
+            free = kernel.given(q0, v0, p0, p1)
+        if not math.isfinite(free.total):
+            raise InvalidLoad(_NOT_FINITE)
+        box = self.modes.box
+        q, v, p1 = free.q.reshape(box), free.v.reshape(box), free.p1.reshape(box)
+        q.flags.writeable = v.flags.writeable = p1.flags.writeable = False
+        index = state.step + 1
+        applied = tuple(zip(prints, forces, strict=True))
+        new = ModalState(index, index * self._dt, q, v, p1, applied, self._owner)
+        return StepResult(new, self.frame(new) if frame else None, (), None)
 
     def lookahead(
         self, state: ModalState, loads: Sequence[Load] = (), probes: Sequence[Probe] = ()
@@ -710,12 +780,20 @@ def damping_ratios(values: ArrayLike, box: tuple[int, ...]) -> FloatArray:
     return ratios
 
 
+_NOT_FINITE = "this step's response is not finite: its forces or depths are too large"
+
+
+def _flat(array: FloatArray) -> FloatArray:
+    """A state's array as one C-contiguous row (a view: a state's arrays are contiguous)."""
+    return array.reshape(-1)
+
+
 def _require_finite(q: FloatArray, v: FloatArray, readings: Sequence[ProbeReading]) -> None:
     """Refuse a step whose response overflowed (inputs within their bounds never do; this is
     the guarantee that no state holds inf or NaN)."""
     # one sum is not finite exactly when some entry is not (or the entries near 1e308)
     if not math.isfinite(float(q.sum()) + float(v.sum())):
-        raise InvalidLoad("this step's response is not finite: its forces or depths are too large")
+        raise InvalidLoad(_NOT_FINITE)
     if not all(math.isfinite(r.force) for r in readings):
         raise InvalidProbe("this step's contact forces are not finite: its depths are too large")
 

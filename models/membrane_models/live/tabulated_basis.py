@@ -212,6 +212,10 @@ class TabulatedBasis:
     def modal_force(self, footprint: TableFootprint) -> FloatArray:
         return footprint.modal_force
 
+    def modal_factors(self, footprint: TableFootprint) -> None:
+        """FEM modes' forces are no outer products: the step takes ``modal_force``."""
+        return None
+
     def own(self, footprint: TableFootprint) -> float:
         key = (footprint.at, footprint.radius)
         own = self._recent_own.get(key)
