@@ -10,8 +10,9 @@ rounded centres is stepped on if it is built, else its build is started in a wor
 (one at a time: the newest wish is built when the last build ends) and the step goes on with
 the state's basis meanwhile. Stepping never waits for a build: a build costs about 0.3 s on
 the skin patch, its first one a few seconds more (the worker's start, the system and the
-condensation). A process, not a thread: a build holds the interpreter's lock for long
-stretches, and a step waiting on it waited up to 0.2 s (p99 10 ms) in a thread.
+condensation). A process, not a thread: a build holds the interpreter's lock between numpy's
+calls, and the steps' tail grew longer beside a thread than beside a process (docs/NONLINEAR.md,
+``benchmarks/nonlinear_tradeoff.py --builds-beside``).
 
 Units: SI (m).
 """
@@ -31,11 +32,11 @@ from typing import TypeVar
 from membrane_models.fem.adapted_basis import Adaptation, AdaptedPlate
 from membrane_models.fem.errors import FemError
 
-__all__ = ["BasisFollower", "Places"]
+__all__ = ["WORKER_NICENESS", "BasisFollower", "Places"]
 
 logger = logging.getLogger(__name__)
 Places = tuple[tuple[float, float], ...]
-_NICENESS = 10  # the worker's, above the steps' process
+WORKER_NICENESS = 5  # the worker's, above the steps' process (a build yields to a step)
 _T = TypeVar("_T")
 
 
@@ -180,7 +181,7 @@ def _open_worker(make: Callable[[], Adaptation]) -> None:
     """The worker's start: below the steps in priority, its BLAS on one thread (a threaded
     BLAS here would take the core the steps run on)."""
     _maker.append(make)
-    os.nice(_NICENESS)
+    os.nice(WORKER_NICENESS)
     try:
         from threadpoolctl import threadpool_limits
     except ImportError:  # the server's extra brings it; without it the BLAS keeps its threads

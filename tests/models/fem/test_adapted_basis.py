@@ -186,9 +186,10 @@ def test_the_engine_steps_onto_the_tools_vector_once_it_is_built(
 
 @pytest.mark.slow
 def test_a_basis_the_worker_cannot_build_leaves_the_state_on_its_own() -> None:
-    # an adaptation that fails in the worker: the place is given up, the step goes on with
-    # the basis it has and never asks again
-    failing = BasisFollower(functools.partial(Adaptation.of, None, None, "held"), 0.00025)
+    # an adaptation that fails in the worker (no system to adapt): the place is given up,
+    # the step goes on with the basis it has and never asks again
+    broken = functools.partial(Adaptation.of, None, None, "held")  # type: ignore[arg-type]
+    failing = BasisFollower(broken, 0.00025)
     try:
         assert failing.follow(None, [OFF_CENTRE]) is None  # asked
         failing.wait()
