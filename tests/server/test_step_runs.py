@@ -12,6 +12,8 @@ from typing import Any
 import numpy as np
 import pytest
 import zmq
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from membrane_client.protocol import Request, decode
 from membrane_client.session import Load, Probe
@@ -28,9 +30,9 @@ def served() -> ServedScene:
     return ServedScene.load("membrane-live")
 
 
-def _dispatcher(served: ServedScene) -> Dispatcher:
+def _dispatcher(served: ServedScene, sessions: int = SESSIONS) -> Dispatcher:
     dispatcher = Dispatcher([served], sessions=SessionTable(300, 60.0, max_per_peer=300))
-    for index in range(SESSIONS):
+    for index in range(sessions):
         body = Request("open", index, session=f"s{index}").to_wire()
         opened = decode(dispatcher.handle([body]).reply)
         assert opened["ok"], opened
@@ -161,3 +163,42 @@ def test_steps_queued_from_many_peers_are_stepped_together(server: Server) -> No
     assert max(widths) > 1, widths  # stepped together, not one by one
     twin = _dispatcher(ServedScene.load("membrane-live"))
     assert replies == [twin.handle([body]).reply for body in bodies]
+
+
+_ACTIONS = st.lists(
+    st.tuples(
+        st.sampled_from(["step", "step", "step", "probe", "wrong k", "re-send", "read", "junk"]),
+        st.integers(0, 5),
+    ),
+    min_size=1,
+    max_size=24,
+)
+
+
+@settings(max_examples=25, deadline=None)
+@given(actions=_ACTIONS)
+def test_any_queue_is_answered_as_one_by_one(served: ServedScene, actions: list[Any]) -> None:
+    """Property: whatever a queue holds (steps of six sessions, a session's next step, probes,
+    wrong k, re-sends, reads, junk), ``handle_many`` gives ``handle``'s replies in order."""
+    alone, together = _dispatcher(served, 6), _dispatcher(served, 6)
+    taken = [0] * 6
+    bodies = []
+    for request_id, (action, session) in enumerate(actions):
+        k = taken[session]
+        if action == "step":
+            bodies.append(_step(request_id, session, k))
+            taken[session] += 1
+        elif action == "probe":
+            probe = [Probe((0.5, 0.5), 0.001, 0.05).to_wire()]
+            bodies.append(_step(request_id, session, k, loads=[], probes=probe))
+            taken[session] += 1
+        elif action == "wrong k":
+            bodies.append(_step(request_id, session, k + 3))
+        elif action == "re-send" and k > 0:
+            bodies.append(_step(request_id, session, k - 1))  # answered from the store
+        elif action == "read":
+            bodies.append(Request("read", request_id, session=f"s{session}").to_wire())
+        else:
+            bodies.append(b"\xc1")
+    expected = [alone.handle([body]).reply for body in bodies]
+    assert [a.reply for a in together.handle_many([([b], "") for b in bodies])] == expected
