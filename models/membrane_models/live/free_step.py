@@ -161,6 +161,8 @@ class FreeStepKernel:
         ``p0``: the last step's p1 (read under "foh")."""
         if not factors:
             return self.given(q0, v0, p0, None)
+        if any(x.shape[0] * y.shape[0] != q0.shape[0] for x, y in factors):
+            raise AssertionError("a load's factors do not span the mode box")  # the loop's bounds
         if not self.compiled:
             p1 = forces[0] * np.multiply.outer(*factors[0]).reshape(-1)
             for (x, y), force in zip(factors[1:], forces[1:], strict=True):
