@@ -62,55 +62,62 @@ class FreeStep(NamedTuple):
     total: float
 
 
-def _compiled() -> tuple[Any, Any] | None:
+try:
+    import numba
+except ImportError:  # the server extra brings it; without, numpy runs the same expressions
+    numba = None
+
+
+def _jit(function: Any) -> Any:
+    """``function`` compiled (on first use, then from the on-disk cache: module-level functions
+    only, so that the cache's key is the same in every process)."""
     try:
-        import numba
-    except ImportError:
-        return None
-
-    @numba.njit(cache=True, nogil=True)
-    def advance(c: Any, q0: Any, v0: Any, p0: Any, p1: Any, mode: int) -> Any:
-        """q, v and sum(q) + sum(v); ``mode`` 0: no load (zoh), 1: zoh, 2: foh."""
-        n = q0.shape[0]
-        q, v = np.empty(n), np.empty(n)
-        total_q, total_v = 0.0, 0.0
-        for k in range(n):
-            a, b = q0[k], v0[k]
-            if mode == 2:
-                r, p = p0[k], p1[k]
-                qk = c[QQ, k] * a + c[QV, k] * b + (c[FOH0_Q, k] * r + c[FOH1_Q, k] * p)
-                vk = c[VQ, k] * a + c[VV, k] * b + (c[FOH0_V, k] * r + c[FOH1_V, k] * p)
-            elif mode == 1:
-                p = p1[k]
-                qk = c[QQ, k] * a + c[QV, k] * b + c[ZOH_Q, k] * p
-                vk = c[VQ, k] * a + c[VV, k] * b + c[ZOH_V, k] * p
-            else:
-                qk = c[QQ, k] * a + c[QV, k] * b
-                vk = c[VQ, k] * a + c[VV, k] * b
-            q[k], v[k] = qk, vk
-            total_q += qk
-            total_v += vk
-        return q, v, total_q + total_v
-
-    @numba.njit(cache=True, nogil=True)
-    def loaded(c: Any, q0: Any, v0: Any, p0: Any, xs: Any, ys: Any, forces: Any, foh: bool) -> Any:
-        """p1 = F_1 x_1 (x) y_1 + F_2 x_2 (x) y_2 + ... (flat, x-major), then the step:
-        q, v, p1 and sum(q) + sum(v)."""
-        kx, ky = xs.shape[1], ys.shape[1]
-        p1 = np.empty(kx * ky)
-        for i in range(kx):
-            for j in range(ky):
-                p = forces[0] * (xs[0, i] * ys[0, j])
-                for m in range(1, forces.shape[0]):
-                    p += forces[m] * (xs[m, i] * ys[m, j])
-                p1[i * ky + j] = p
-        q, v, total = advance(c, q0, v0, p0, p1, 2 if foh else 1)
-        return q, v, p1, total
-
-    return loaded, advance
+        return numba.njit(cache=True, nogil=True)(function)
+    except RuntimeError:  # no writable cache directory: each process compiles its own
+        return numba.njit(nogil=True)(function)
 
 
-_KERNELS = _compiled()
+def _advance(c: Any, q0: Any, v0: Any, p0: Any, p1: Any, mode: int) -> Any:
+    """q, v and sum(q) + sum(v); ``mode`` 0: no load (zoh), 1: zoh, 2: foh."""
+    n = q0.shape[0]
+    q, v = np.empty(n), np.empty(n)
+    total_q, total_v = 0.0, 0.0
+    for k in range(n):
+        a, b = q0[k], v0[k]
+        if mode == 2:
+            r, p = p0[k], p1[k]
+            qk = c[QQ, k] * a + c[QV, k] * b + (c[FOH0_Q, k] * r + c[FOH1_Q, k] * p)
+            vk = c[VQ, k] * a + c[VV, k] * b + (c[FOH0_V, k] * r + c[FOH1_V, k] * p)
+        elif mode == 1:
+            p = p1[k]
+            qk = c[QQ, k] * a + c[QV, k] * b + c[ZOH_Q, k] * p
+            vk = c[VQ, k] * a + c[VV, k] * b + c[ZOH_V, k] * p
+        else:
+            qk = c[QQ, k] * a + c[QV, k] * b
+            vk = c[VQ, k] * a + c[VV, k] * b
+        q[k], v[k] = qk, vk
+        total_q += qk
+        total_v += vk
+    return q, v, total_q + total_v
+
+
+def _loaded(c: Any, q0: Any, v0: Any, p0: Any, xs: Any, ys: Any, forces: Any, foh: bool) -> Any:
+    """p1 = F_1 x_1 (x) y_1 + F_2 x_2 (x) y_2 + ... (flat, x-major), then the step: q, v, p1
+    and sum(q) + sum(v)."""
+    kx, ky = xs.shape[1], ys.shape[1]
+    p1 = np.empty(kx * ky)
+    for i in range(kx):
+        for j in range(ky):
+            p = forces[0] * (xs[0, i] * ys[0, j])
+            for m in range(1, forces.shape[0]):
+                p += forces[m] * (xs[m, i] * ys[m, j])
+            p1[i * ky + j] = p
+    q, v, total = _advance_compiled(c, q0, v0, p0, p1, 2 if foh else 1)
+    return q, v, p1, total
+
+
+_advance_compiled = _jit(_advance) if numba is not None else None
+_KERNELS = (_jit(_loaded), _advance_compiled) if numba is not None else None
 COMPILED = _KERNELS is not None  # whether steps run the compiled loops
 
 
