@@ -65,7 +65,7 @@ class FreeStep(NamedTuple):
 try:
     import numba
 except ImportError:  # the server extra brings it; without, numpy runs the same expressions
-    numba = None
+    numba = None  # type: ignore[assignment]
 
 
 def _jit(function: Any) -> Any:
