@@ -106,7 +106,7 @@ class BasisFollower:
         with self._lock:
             if self._worker is None and not self._broken:
                 self._open()
-                self._warming = self._submit(_prepare)
+                self._warming = self._submit(_prepare, self._make)
 
     def wait(self) -> None:
         """Until the worker's preparation and the build under way (if any) have ended: for
@@ -131,12 +131,12 @@ class BasisFollower:
         # may hang; a spawned worker imports the main module as a module, so a script that
         # steps the engine needs the ``if __name__ == "__main__"`` guard
         context = multiprocessing.get_context("spawn")
-        self._worker = ProcessPoolExecutor(1, context, _open_worker, (self._make,))
+        self._worker = ProcessPoolExecutor(1, context, _open_worker)
 
     def _start(self, wanted: Places) -> None:
         if self._worker is None:
             self._open()
-            self._warming = self._submit(_prepare)
+            self._warming = self._submit(_prepare, self._make)
         future = self._submit(_build, wanted)
         if future is not None:
             self._pending = (wanted, future)
@@ -172,15 +172,14 @@ class BasisFollower:
             self._built.popitem(last=False)
 
 
-# The worker process's own: what its first build makes, and how.
+# The worker process's own: what its preparation made.
 _made: list[Adaptation] = []
-_maker: list[Callable[[], Adaptation]] = []
 
 
-def _open_worker(make: Callable[[], Adaptation]) -> None:
+def _open_worker() -> None:
     """The worker's start: below the steps in priority, its BLAS on one thread (a threaded
-    BLAS here would take the core the steps run on)."""
-    _maker.append(make)
+    BLAS here would take the core the steps run on). Nothing large is passed here: a spawned
+    process's start arguments are written while its parent waits, the plate is sent as a job."""
     os.nice(WORKER_NICENESS)
     try:
         from threadpoolctl import threadpool_limits
@@ -189,15 +188,21 @@ def _open_worker(make: Callable[[], Adaptation]) -> None:
     threadpool_limits(limits=1, user_api="blas")
 
 
-def _prepare() -> None:
-    """The worker's ``Adaptation``, made before the first place is asked for."""
+def _prepare(make: Callable[[], Adaptation]) -> None:
+    """The worker's ``Adaptation``, made once, before the first place is built (the worker's
+    jobs run in the order they were given)."""
     if not _made:
-        _made.append(_maker[0]())
+        _made.append(make())
 
 
 def _build(wanted: Places) -> AdaptedPlate | None:
-    """The adapted basis at ``wanted``, in the worker; None where there is none."""
-    _prepare()
+    """The adapted basis at ``wanted``, in the worker; None where there is none.
+
+    Raises:
+        RuntimeError: the worker's preparation failed (the place is then given up).
+    """
+    if not _made:
+        raise RuntimeError("the worker has no adaptation: its preparation failed")
     try:
         return _made[0].adapted(wanted)
     except FemError as error:  # a point off the mesh, or a response the modes span
