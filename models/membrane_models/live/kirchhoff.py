@@ -78,10 +78,10 @@ class _Constants:
 
         q1(T) = m / D - alpha q0,   m = from_q q0 + from_v v0 + from_force p,
 
-    p the modal force held over the step, and its transition (``KirchhoffEngine._transition``)
-    is affine in the gain 1 / D with the coefficients below: qq = qq_gain / D - alpha,
-    qv = qv_gain / D, vv = vv_gain / D - alpha, vq = -dt T kappa^2 / D, zoh_v = dt / D,
-    zoh_q = theta dt^2 / D.
+    p the modal force held over the step; its transition (``KirchhoffEngine._transition``)
+    is vq = -dt T kappa^2 / D, vv = (relaxed - T n1) / D, qq = 1 + theta dt vq,
+    qv = (1 - theta) dt + theta dt vv, zoh_v = dt / D, zoh_q = theta dt zoh_v, with
+    relaxed = 1 - dt f (1 - theta) and n1 = theta (1 - theta) dt^2 kappa^2.
     """
 
     theta: float
@@ -91,10 +91,8 @@ class _Constants:
     from_force: FloatArray
     d0: FloatArray
     d1: FloatArray
-    minus_alpha: FloatArray  # -alpha on the kept modes
-    qq_gain: FloatArray
-    qv_gain: FloatArray
-    vv_gain: FloatArray
+    relaxed: FloatArray
+    n1: FloatArray
 
     @classmethod
     def of(
@@ -107,7 +105,6 @@ class _Constants:
         # T d1 = D - d0 that is m - alpha D q0, m = N0 + alpha d0 q0
         relaxed = 1.0 - dt * friction * (1.0 - theta)
         from_v = (1.0 - theta) * dt * d0 + theta * dt * relaxed
-        vv_gain = (relaxed + alpha * d0) * kept
         return cls(
             theta=theta,
             alpha=alpha,
@@ -116,10 +113,8 @@ class _Constants:
             from_force=theta * dt * dt * kept,
             d0=d0,
             d1=theta * theta * dt * dt * kappa2,
-            minus_alpha=-alpha * kept,
-            qq_gain=d0 / theta * kept,
-            qv_gain=theta * dt * vv_gain,
-            vv_gain=vv_gain,
+            relaxed=relaxed,
+            n1=theta * (1.0 - theta) * dt * dt * kappa2,
         )
 
     def numerator(self, q0: FloatArray, v0: FloatArray, force: FloatArray | None) -> FloatArray:
@@ -369,23 +364,21 @@ class KirchhoffEngine(ModalEngine):
 
     def _transition(self, c: _Constants, tension: float) -> Transition:
         """The theta step of every kept mode under ``tension`` (module docstring): 1/2 the
-        trapezoid, 1 backward Euler; its coefficients affine in the gain 1 / D
-        (``_Constants``)."""
-        dt = self.dt
+        trapezoid, 1 backward Euler (``_Constants``; written as the energy's figure was
+        measured with: the same coefficients in another arrangement round differently, and
+        one measured a spread of 3.2e-14 for 1.4e-14 over 10^4 steps)."""
+        dt, theta = self.dt, c.theta
         gain = self._kept / (c.d0 + tension * c.d1)
-        qq = c.qq_gain * gain
-        vv = c.vv_gain * gain
-        if c.alpha:
-            qq += c.minus_alpha
-            vv += c.minus_alpha
+        vq = -dt * tension * self._wavenumber2 * gain
+        vv = (c.relaxed - tension * c.n1) * gain
         zoh_v = dt * gain
         zeros = self._zeros
         return Transition(
-            qq=qq,
-            qv=c.qv_gain * gain,
-            vq=(-dt * tension) * self._wavenumber2 * gain,
+            qq=self._kept + theta * dt * vq,
+            qv=((1.0 - theta) * dt) * self._kept + theta * dt * vv,
+            vq=vq,
             vv=vv,
-            zoh_q=(c.theta * dt) * zoh_v,
+            zoh_q=theta * dt * zoh_v,
             zoh_v=zoh_v,
             foh0_q=zeros,
             foh0_v=zeros,

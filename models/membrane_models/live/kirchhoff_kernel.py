@@ -34,8 +34,7 @@ FloatArray = NDArray[np.float64]
 # the scalars (``PARAMETERS``)
 COEFFICIENTS = 6
 CONSTANT_ROWS = (
-    "kappa2", "d0", "d1", "kept", "from_q", "from_v", "from_force",
-    "qq_gain", "qv_gain", "vv_gain", "minus_alpha", "friction",
+    "kappa2", "d0", "d1", "kept", "from_q", "from_v", "from_force", "relaxed", "n1", "friction",
 )  # fmt: skip
 # the scalars: c^2, k, theta, alpha, dt, the Newton's settled change and its most iterations
 PARAMETERS = ("c2", "k", "theta", "alpha", "dt", "settled", "max_newton")
@@ -54,7 +53,7 @@ def _theta_step(
     transition's coefficients at it written to the workspace ``work``'s first rows."""
     out, c = work[:COEFFICIENTS], work[COEFFICIENTS:]
     kappa2, d0, d1, kept = c[0], c[1], c[2], c[3]
-    from_q, from_v, from_force, friction = c[4], c[5], c[6], c[11]
+    from_q, from_v, from_force, relaxed, n1, friction = c[4], c[5], c[6], c[7], c[8], c[9]
     scalars = c[len(CONSTANT_ROWS)]
     c2, k, theta, alpha, dt = scalars[0], scalars[1], scalars[2], scalars[3], scalars[4]
     settled, max_newton = scalars[5], int(scalars[6])
@@ -120,15 +119,16 @@ def _theta_step(
     if not last:  # no settled change: the coefficients at the last tension
         for i in range(n):
             gain[i] = kept[i] / (d0[i] + tension * d1[i])
-    qq_gain, qv_gain, vv_gain, minus_alpha = c[7], c[8], c[9], c[10]
     for i in range(n):
         g = gain[i]
-        out[0, i] = qq_gain[i] * g + minus_alpha[i]
-        out[1, i] = qv_gain[i] * g
-        out[2, i] = (-dt * tension) * kappa2[i] * g
-        out[3, i] = vv_gain[i] * g + minus_alpha[i]
+        vq = -dt * tension * kappa2[i] * g
+        vv = (relaxed[i] - tension * n1[i]) * g
         zoh_v = dt * g
-        out[4, i] = (theta * dt) * zoh_v
+        out[0, i] = kept[i] + theta * dt * vq
+        out[1, i] = (1.0 - theta) * dt * kept[i] + theta * dt * vv
+        out[2, i] = vq
+        out[3, i] = vv
+        out[4, i] = theta * dt * zoh_v
         out[5, i] = zoh_v
     return tension, s0, miss
 

@@ -78,18 +78,22 @@ class ContactRows:
         g s_j per row and C; None where the contact problem has no answer (a row that cannot
         move: the whole step refuses it with its own error)."""
         shaped = self.shapes * (self.from_force * gain)  # g s_j
-        compliance = self.scale * (shaped @ self.shapes.T) + self.residual
-        violation = self.scale * (self.shapes @ q_free) + self.offsets + self.depths
         try:
-            if violation.size == 1:
-                c, b = float(compliance[0, 0]), float(violation[0])
+            if self.depths.size == 1:  # the haptic loop's one row, in scalars
+                c = self.scale * float(np.dot(shaped[0], self.shapes[0])) + self.residual[0, 0]
+                b = self.scale * float(np.dot(self.shapes[0], q_free)) + self.offsets[0]
+                b += self.depths[0]
+                compliance = np.array([[c]])
                 if self.held[0]:
                     if not c > 0.0:
                         return None
                     force = np.array([b / c])
                 else:
                     force = np.array([single_contact(c, b)])
-            elif self.held.any():
+                return force, shaped, compliance
+            compliance = self.scale * (shaped @ self.shapes.T) + self.residual
+            violation = self.scale * (self.shapes @ q_free) + self.offsets + self.depths
+            if self.held.any():
                 force = solve_mixed(compliance, violation, self.held)
             else:
                 force = solve_contact(compliance, violation)
@@ -97,17 +101,17 @@ class ContactRows:
             return None
         return force, shaped, compliance
 
-    def force_rate(
-        self, force: FloatArray, compliance: FloatArray, w: FloatArray
-    ) -> tuple[FloatArray, NDArray[np.bool_]]:
+    def force_rate(self, force: FloatArray, compliance: FloatArray, w: FloatArray) -> FloatArray:
         """dF/dT on the active rows (held, or pushing), 0 elsewhere, with w = u d1 / D
-        (module docstring), and the active rows."""
+        (module docstring)."""
+        if force.size == 1:  # active: the caller's force is not 0
+            return np.array([-self.scale * float(np.dot(self.shapes[0], w)) / compliance[0, 0]])
         active = self.held | (force > 0.0)
         rate = np.zeros(force.size)
         if active.any():
             pushed = -self.scale * (self.shapes[active] @ w)
             rate[active] = np.linalg.solve(compliance[np.ix_(active, active)], pushed)
-        return rate, active
+        return rate
 
 
 def tension_newton(
@@ -153,8 +157,8 @@ def tension_newton(
         w *= gain  # -dq1/dT with the contact's force held
         rate = -float(np.dot(kq, w))  # dS1/dT so
         if solved is not None and solved[0].any():
-            force_rate, active = contact.force_rate(force, compliance, w)  # type: ignore[union-attr]
-            rate -= float(force_rate[active] @ (shaped[active] @ kq))
+            force_rate = contact.force_rate(force, compliance, w)  # type: ignore[union-attr]
+            rate -= float(force_rate @ (shaped @ kq))  # 0 on the rows not active
         miss = c2 + k * ((1.0 - theta) * s0 + theta * 0.5 * float(np.dot(kq, q1))) - tension
         change = miss / (1.0 - theta * k * rate)
         tension = max(tension + change, floor)  # a wild guess's first change may undershoot
