@@ -9,11 +9,14 @@ in another order, so the two agree to rounding (``tests/models/live/test_live_ki
 
 Why compiled: a step of the string is about 30 vector operations over 128 modes beyond the
 linear rope's (the stretch and its rates, one or two Newton evaluations, the transition's six
-coefficients), each a numpy call of about 0.6 us whatever its length, and numpy's path cost
-about 2.4 times the linear rope's step (``benchmarks/kirchhoff_live.py``). One pass per
-evaluation over the modes costs less than one of those calls. Without numba (the ``server``
-extra) the engine takes the numpy path. The kernel is compiled (or loaded from numba's cache)
-when an engine is built, never on a step.
+coefficients), each a numpy call of about 0.6 us whatever its length: numpy's path costs 2.3
+to 3.3 times the linear rope's free step (``benchmarks/kirchhoff_live.py``, its "numpy path").
+The kernels make one pass per evaluation over the modes and write the coefficients into the
+engine's per-thread workspace (no arrays made per step); a call costs about 1 us of numba's
+dispatch, the more arguments the more. Without numba (the ``server`` extra) the engine takes
+the numpy path. They compile when the first engine is built (5.7 s on this machine), or load
+from numba's on-disk cache (module-level functions: found again by every process; 0.4 s),
+never on a step.
 """
 
 from __future__ import annotations
@@ -135,6 +138,40 @@ def _theta_step(
 
 Kernel = Callable[..., tuple[float, float, float]]
 
+try:
+    import numba
+    from numba import types
+except ImportError:  # the server extra brings it; without, the engine takes the numpy path
+    numba = None  # type: ignore[assignment]
+    types = None  # type: ignore[assignment]
+
+
+def _jit(function: Any, *signature: Any) -> Any:
+    """``function`` compiled (for ``signature`` now, else on first use), from numba's on-disk
+    cache where it has one: module-level functions only, whose cache is found again by every
+    process."""
+    jit: Any = numba.njit
+    arguments = (signature,) if signature else ()
+    try:
+        return jit(*arguments, cache=True, nogil=True)(function)
+    except RuntimeError:  # no writable cache directory: each process compiles its own
+        return jit(*arguments, nogil=True)(function)
+
+
+_step = _jit(_theta_step) if numba is not None else None
+
+
+def _free(q0: Any, v0: Any, work: Any) -> Any:
+    return _step(q0, v0, False, q0, work, False, q0, q0)
+
+
+def _loaded(q0: Any, v0: Any, p: Any, work: Any) -> Any:
+    return _step(q0, v0, True, p, work, False, q0, q0)
+
+
+def _pressed(q0: Any, v0: Any, p: Any, work: Any, shape: Any, row: Any) -> Any:
+    return _step(q0, v0, True, p, work, True, shape, row)
+
 
 @functools.cache
 def compiled_theta_step() -> tuple[Kernel, Kernel, Kernel] | None:
@@ -142,30 +179,12 @@ def compiled_theta_step() -> tuple[Kernel, Kernel, Kernel] | None:
     ``free(q0, v0, work)``, ``loaded(q0, v0, p, work)`` and, with one contact row,
     ``pressed(q0, v0, p, work, shape, row)`` (as few arguments as can be: each costs a call
     about 0.3 us of numba's dispatch)."""
-    try:
-        import numba
-        from numba import types
-    except ImportError:
+    if numba is None:
         return None
     one = types.Array(types.float64, 1, "C", readonly=True)
     work = types.Array(types.float64, 2, "C")
-    step = numba.njit(cache=True, nogil=True)(_theta_step)
-
-    def free(q0: Any, v0: Any, w: Any) -> Any:
-        return step(q0, v0, False, q0, w, False, q0, q0)
-
-    def loaded(q0: Any, v0: Any, p: Any, w: Any) -> Any:
-        return step(q0, v0, True, p, w, False, q0, q0)
-
-    def pressed(q0: Any, v0: Any, p: Any, w: Any, shape: Any, row: Any) -> Any:
-        return step(q0, v0, True, p, w, True, shape, row)
-
-    def compiled(function: Any, *signature: Any) -> Kernel:
-        kernel: Kernel = numba.njit(signature, cache=True, nogil=True)(function)
-        return kernel
-
     return (
-        compiled(free, one, one, work),
-        compiled(loaded, one, one, one, work),
-        compiled(pressed, one, one, one, work, one, one),
+        _jit(_free, one, one, work),
+        _jit(_loaded, one, one, one, work),
+        _jit(_pressed, one, one, one, work, one, one),
     )
