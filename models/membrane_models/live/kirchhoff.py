@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,6 +44,8 @@ from numpy.typing import NDArray
 
 from membrane_models.live.engine import ModalEngine
 from membrane_models.live.errors import InvalidEngineSettings, InvalidLoad
+from membrane_models.live.inputs import parse_loads
+from membrane_models.live.interface import Grasp, Load, Probe, StepResult, Tool
 from membrane_models.live.kirchhoff_kernel import (
     COEFFICIENTS,
     CONSTANT_ROWS,
@@ -225,6 +227,41 @@ class KirchhoffEngine(ModalEngine):
             "backward Euler in steps with probes, grasps or tools",
             "static_correction": False,
         }
+
+    def step(
+        self,
+        state: ModalState,
+        loads: Sequence[Load] = (),
+        probes: Sequence[Probe] = (),
+        *,
+        frame: bool = True,
+        work: bool = False,
+        grasps: Sequence[Grasp] = (),
+        tools: Sequence[Tool] = (),
+    ) -> StepResult[ModalState]:
+        """``ModalStepper.step``; a step under loads alone, where the kernels are compiled, in
+        one call that solves the tension and takes the free step (the core's expressions: the
+        same bits as its general path, ``tests/models/live/test_live_kirchhoff.py``)."""
+        if probes or grasps or tools or work or self._kernels is None:
+            return super().step(state, loads, probes, frame=frame, work=work, grasps=grasps,
+                                tools=tools)  # fmt: skip
+        self._check(state)
+        basis = self.basis
+        checked = parse_loads(loads, self._dims, basis.contains) if loads else ()
+        prints = basis.footprints(checked, (), self.budget)[0]
+        forces = [ld.force for ld in checked]
+        p1 = self._modal_force(prints, forces)
+        work_rows, _ = self._scratch.workspaces[0.5]
+        loaded = p1 is not self._zeros
+        tension, miss, q, v = self._kernels[3](state.q, state.v, loaded, p1, work_rows)
+        finite = math.isfinite(float(q.sum()) + float(v.sum()))
+        if not (finite and abs(miss) <= _TOLERANCE * tension):  # the general path refuses it
+            return super().step(state, loads, frame=frame)  # or solves it by the secant
+        q.flags.writeable = v.flags.writeable = p1.flags.writeable = False
+        index = state.step + 1
+        applied = tuple(zip(prints, forces, strict=True))
+        new = ModalState(index, index * self.dt, q, v, p1, applied, self._owner)
+        return StepResult(new, self.frame(new) if frame else None, (), None)
 
     def _solve_step(
         self,

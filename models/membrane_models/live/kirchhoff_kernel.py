@@ -137,6 +137,7 @@ def _theta_step(
 
 
 Kernel = Callable[..., tuple[float, float, float]]
+Stepped = Callable[..., tuple[float, float, FloatArray, FloatArray]]
 
 try:
     import numba
@@ -173,12 +174,31 @@ def _pressed(q0: Any, v0: Any, p: Any, work: Any, shape: Any, row: Any) -> Any:
     return _step(q0, v0, True, p, work, True, shape, row)
 
 
+def _stepped(q0: Any, v0: Any, loaded: bool, p: Any, work: Any) -> Any:
+    """A step without contact whole: (T, miss, q, v), q and v by the stepping core's free
+    step's expressions on the coefficients, in its order (q = qq q0 + qv v0 + zoh_q p, and so
+    v: the same bits)."""
+    tension, _, miss = _step(q0, v0, loaded, p, work, False, q0, q0)
+    n = q0.shape[0]
+    q, v = np.empty(n), np.empty(n)
+    for i in range(n):
+        a, b = q0[i], v0[i]
+        if loaded:
+            q[i] = work[0, i] * a + work[1, i] * b + work[4, i] * p[i]
+            v[i] = work[2, i] * a + work[3, i] * b + work[5, i] * p[i]
+        else:
+            q[i] = work[0, i] * a + work[1, i] * b
+            v[i] = work[2, i] * a + work[3, i] * b
+    return tension, miss, q, v
+
+
 @functools.cache
-def compiled_theta_step() -> tuple[Kernel, Kernel, Kernel] | None:
+def compiled_theta_step() -> tuple[Kernel, Kernel, Kernel, Stepped] | None:
     """The compiled kernels (compiled now, or loaded from numba's cache), None without numba:
     ``free(q0, v0, work)``, ``loaded(q0, v0, p, work)`` and, with one contact row,
     ``pressed(q0, v0, p, work, shape, row)`` (as few arguments as can be: each costs a call
-    about 0.3 us of numba's dispatch)."""
+    about 0.3 us of numba's dispatch), and ``stepped(q0, v0, loaded, p, work)``: a step
+    without contact whole."""
     if numba is None:
         return None
     one = types.Array(types.float64, 1, "C", readonly=True)
@@ -187,4 +207,5 @@ def compiled_theta_step() -> tuple[Kernel, Kernel, Kernel] | None:
         _jit(_free, one, one, work),
         _jit(_loaded, one, one, one, work),
         _jit(_pressed, one, one, one, work, one, one),
+        _jit(_stepped, one, one, types.boolean, one, work),
     )
