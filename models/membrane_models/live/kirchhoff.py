@@ -26,7 +26,9 @@ first, by Newton on the step's modes with its loads and its probes' and grasps' 
 taken at it, once. A tool's contact, which only the whole step solves, may still move the
 string off that T: then the secant method on whole steps from there. With numba installed, a
 step with at most one probe or grasp is solved by one compiled loop of the same arithmetic
-(``kirchhoff_kernel``). Damping ratios are of the linear frequencies w_n = n pi c.
+(``kirchhoff_kernel``), and a step under loads alone is taken whole in one compiled call (the
+tension, then the core's free step by its own expressions: its general path's bits). Damping
+ratios are of the linear frequencies w_n = n pi c.
 
 Every mode the lattice resolves is stepped and there is no static correction: the residual
 flexibility of the modes beyond would need the tension too. Units: the problem's.
