@@ -45,6 +45,7 @@ from membrane_client.protocol import (
     error_reply,
 )
 from membrane_errors import UserError
+from membrane_models.live import PreparingEngine
 from membrane_server.dispatch import Answer, Dispatcher
 from membrane_server.heap import keep_temporaries_in_heap, malloc_trim_function
 from membrane_server.reloading import SceneBuilder, describe_changes
@@ -281,6 +282,9 @@ class Server:
             self._swap_in(served)
 
     def _dispatcher(self, served: list[ServedScene]) -> Dispatcher:
+        for scene in served:  # work an engine starts before its first session (a worker)
+            if isinstance(scene.live, PreparingEngine):
+                scene.live.prepare()
         # hello's per-peer figures through a weak reference: no dispatcher keeps the server
         server = weakref.proxy(self)
         return Dispatcher(

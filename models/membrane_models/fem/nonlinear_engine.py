@@ -255,8 +255,7 @@ class NonlinearPlateEngine:
         Raises:
             InvalidShape: a shape of the wrong size, or with NaN or inf.
         """
-        if self.follower is not None:  # a session is about to press: ready its first basis
-            self.follower.prepare()
+        self.prepare()  # a session is about to press: ready its first basis (if not yet)
         q, q_residual = self._project(displacement, "displacement")
         v, v_residual = self._project(velocity, "velocity")
         state = NonlinearPlateState(0, 0.0, q, v, self._no_points, np.zeros(0), self._owner)
@@ -329,6 +328,13 @@ class NonlinearPlateEngine:
         plate, q, v = self._plate(state), state.q, state.v
         bending = 0.5 * float(np.sum(plate.omega**2 * q * q))
         return 0.5 * float(v @ v) + bending + plate.stretching_energy(q)
+
+    def prepare(self) -> None:
+        """Start the adapted bases' worker and what its builds need (seconds of a core, in
+        that process: ``PreparingEngine``), so that the first session's press waits for no
+        more than its vector's build; nothing when it is under way or done, or without them."""
+        if self.follower is not None:
+            self.follower.prepare()
 
     def close(self) -> None:
         """Stop the adapted bases' worker thread (a build under way is finished first)."""

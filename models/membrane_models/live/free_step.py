@@ -15,10 +15,12 @@ in numpy (``compiled=False``, the reference the compiled loop is tested against)
 many sessions' steps.
 
 Why a compiled loop (numba, in the ``server`` extra): a 60 x 60 mode box is 29 KiB an array, and
-numpy's expressions make a pass and a temporary per operation, about twenty passes a step. The
-step is bound by that memory traffic, not by its arithmetic: one pass that reads q0 and v0 and
-writes q, v and p1 costs several times less (``benchmarks/batched_steps.py``). Without numba the
-same expressions run in numpy.
+numpy's expressions make a pass and a temporary per operation, about twenty passes a step; one
+pass that reads q0 and v0 and writes q, v and p1 costs about half as much or less
+(``benchmarks/batched_steps.py --kernel``: 18-24 us a session against 42-60 with numpy). Stepping
+many sessions as one wide (sessions x modes) numpy array gains little over numpy per session
+(41-46 us), so a batch is each session's pass, one after the other. Without numba the same
+expressions run in numpy.
 """
 
 from __future__ import annotations

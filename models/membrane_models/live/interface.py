@@ -35,6 +35,7 @@ __all__ = [
     "LiveEngine",
     "Load",
     "LookaheadEngine",
+    "PreparingEngine",
     "Probe",
     "ProbeReading",
     "Start",
@@ -235,6 +236,15 @@ class LookaheadEngine(Protocol):
     ) -> tuple[float, ...]:
         """Per probe, the footprint-weighted displacement at the end of the step from ``state``
         under ``loads`` and no contact (NaN for a probe outside the domain)."""
+
+
+@runtime_checkable
+class PreparingEngine(Protocol):
+    """An engine with work to start before its first session (a worker process, tables): a
+    server calls ``prepare`` once the scene is served, so that no session waits for it."""
+
+    def prepare(self) -> None:
+        """Start that work, off the caller's thread; returns at once."""
 
 
 @runtime_checkable
