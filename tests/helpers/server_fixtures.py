@@ -30,6 +30,7 @@ from onnx_graphs import TestModel, build_test_model
 from membrane_server.scene import Scene, scene_from_dict
 from membrane_server.served import ServedScene
 from membrane_server.server import Server
+from membrane_server.sessions import SessionTable
 
 LOOPBACK_ANY_PORT = "tcp://127.0.0.1:*"
 
@@ -108,6 +109,17 @@ def evaluator_server(evaluator_scenes: dict[str, ServedScene]) -> Iterator[Serve
 def membrane_server() -> Iterator[Server]:
     """A server on the built-in 'membrane' scene."""
     server = Server(["membrane"], bind=LOOPBACK_ANY_PORT)
+    server.start()
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def many_sessions_server() -> Iterator[Server]:
+    """A server on `membrane-live` that holds 300 sessions, all of one peer if it likes (a
+    client of many environments)."""
+    sessions = SessionTable(300, 60.0, max_per_peer=300)
+    server = Server(["membrane-live"], bind=LOOPBACK_ANY_PORT, sessions=sessions)
     server.start()
     yield server
     server.stop()

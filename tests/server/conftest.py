@@ -9,6 +9,7 @@ from server_fixtures import (  # noqa: F401 (fixtures register by name)
     evaluator_scenes,
     evaluator_server,
     make_scene,
+    many_sessions_server,
     membrane_server,
     start_server,
     test_models,

@@ -4,7 +4,6 @@ the store), a refused item stops no other, and a batch past its bounds is refuse
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -14,21 +13,13 @@ from membrane_client import Client, ServerError
 from membrane_client.protocol import MAX_BATCH_STEPS, Request, RequestError, encode
 from membrane_client.session import Load, Probe, step_many
 from membrane_server.server import Server
-from membrane_server.sessions import SessionTable
 
 SESSIONS, ROUNDS = 64, 8
 
 
 @pytest.fixture
-def server() -> Iterator[Server]:
-    started = Server(
-        ["membrane-live"],
-        bind="tcp://127.0.0.1:*",
-        sessions=SessionTable(300, 60.0, max_per_peer=300),
-    )
-    started.start()
-    yield started
-    started.stop()
+def server(many_sessions_server: Server) -> Server:
+    return many_sessions_server
 
 
 def _inputs(index: int, k: int) -> dict[str, Any]:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -107,15 +106,8 @@ def test_a_run_keeps_the_order_of_effects(served: ServedScene) -> None:
 
 
 @pytest.fixture
-def server() -> Iterator[Server]:
-    started = Server(
-        ["membrane-live"],
-        bind="tcp://127.0.0.1:*",
-        sessions=SessionTable(300, 60.0, max_per_peer=300),
-    )
-    started.start()
-    yield started
-    started.stop()
+def server(many_sessions_server: Server) -> Server:
+    return many_sessions_server
 
 
 def _dealer(address: str) -> zmq.Socket[bytes]:
