@@ -202,9 +202,11 @@ class NonlinearPlateEngine:
     @property
     def state_bytes(self) -> int:
         """q, v and the acceleration, the forces of at most every tool's points with their
-        indices, and the iteration matrix (the LU, the points' response and compliance)."""
+        indices, and the iteration matrix (the LU, the points' shapes, response, compliance and
+        flexibility, and the last active set's solution, at most (2 p, p), with its key)."""
         r, points = self.plate.size + MAX_TOOLS, MAX_TOOLS * MAX_TOOL_POINTS
-        matrix = 8 * (r * r + r + r * points + points * points + points)
+        kept = 2 * r * points + 4 * points * points + 2 * points  # shapes ... the set's key
+        matrix = 8 * (r * r + r + kept)
         coefficients = 2 * 8 * r
         return 3 * 8 * r + 16 * points + matrix + coefficients + _STATE_OVERHEAD
 
