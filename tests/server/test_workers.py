@@ -61,7 +61,9 @@ class Workers:
         base = free_port_run(count)
         self.process = subprocess.Popen(
             [*MEMBRANE, "serve", "--workers", str(count), "--bind", f"tcp://127.0.0.1:{base}",
-             "--scene", "membrane-live", "--scene", "membrane"],
+             "--scene", "membrane-live", "--scene", "membrane",
+             # one client holds every session: the hash may give one worker more than 16 of them
+             "--max-sessions-per-peer", str(SESSIONS)],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
         assert self.process.stdout is not None and self.process.stderr is not None
