@@ -181,5 +181,6 @@ def _run_costs(
             current[name] = state
     return {name: seconds / steps * 1e6 for name, seconds in elapsed.items()}
 
+
 if __name__ == "__main__":
     main()

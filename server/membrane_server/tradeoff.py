@@ -13,6 +13,11 @@ times (the first sweep warms up), and the tool records
 
 Cases that cannot be served (say a model whose time domain is shorter than the scene) are kept
 with the reason, not dropped silently.
+
+The accuracy half of the cases can run on an executor (``--executor ray``: each case's frames
+served by a server of its own in a Ray task, ``case_accuracy``); the timings stay serial, one
+case at a time in one server process, or the cases would measure each other. A case's frames do
+not depend on where it was served, so its error is the same either way.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from membrane_errors import MembraneError
 from membrane_models.artifacts.manifest import Manifest
 from membrane_models.artifacts.zoo_index import list_models, resolve_model
 from membrane_models.exact import exact_solution
+from membrane_models.executors import Executor, Job
 from membrane_models.problems import make_problem
 from membrane_server.evaluators import build_evaluator
 from membrane_server.runtime import OPTIMIZATION_LEVELS
@@ -46,11 +52,13 @@ __all__ = [
     "LATTICES",
     "OPTIMIZATION_LEVELS",
     "SCENE_PROBLEMS",
+    "Accuracy",
     "Case",
     "CaseServer",
     "Measurement",
     "TradeoffError",
     "build_case",
+    "case_accuracy",
     "measure_cases",
     "pareto_front",
     "plan_cases",
@@ -383,7 +391,10 @@ Progress = Callable[[int, int, Case, Measurement], None]
 
 
 def measure_cases(
-    cases: Sequence[Case], rounds: int = 6, progress: Progress | None = None
+    cases: Sequence[Case],
+    rounds: int = 6,
+    progress: Progress | None = None,
+    executor: Executor | None = None,
 ) -> list[Measurement]:
     """Serve and measure every case, one at a time, in one server process.
 
@@ -391,14 +402,21 @@ def measure_cases(
         cases: From ``plan_cases``.
         rounds: Sweeps over the time grid per case; the first is a warm-up (not timed).
         progress: Called after each case.
+        executor: Where the cases' accuracy is measured first, each case served by a server of
+            its own (``case_accuracy``); None: from the timing server's warm-up sweep. The
+            timings are serial either way.
     """
     if rounds < 2:
         raise ValueError(f"rounds must be >= 2 (the first one warms up), got {rounds}")
+    accuracies: list[Accuracy | None] = [None] * len(cases)
+    if executor is not None:
+        jobs = [Job(_case_name(case), case_accuracy, (case,)) for case in cases]
+        accuracies = [*executor.run(jobs)]
     host = CaseServer()
     results = []
     try:
-        for number, case in enumerate(cases, start=1):
-            measurement = _measure_one(host, case, rounds)
+        for number, (case, accuracy) in enumerate(zip(cases, accuracies, strict=True), start=1):
+            measurement = _measure_one(host, case, rounds, accuracy)
             results.append(measurement)
             if progress is not None:
                 progress(number, len(cases), case, measurement)
@@ -407,7 +425,46 @@ def measure_cases(
     return results
 
 
-def _measure_one(host: CaseServer, case: Case, rounds: int) -> Measurement:
+@dataclass(frozen=True)
+class Accuracy:
+    """A case's served frames against the exact solution, or why the case could not be served."""
+
+    relative_l2: float = math.nan
+    max_abs_error: float = math.nan
+    failure: str | None = None
+
+
+def case_accuracy(case: Case) -> Accuracy:
+    """Serve ``case`` from a server in this process, sweep its time grid once with a real
+    client, and compare the frames with the exact solution (a job for an executor)."""
+    from membrane_server.server import Server
+
+    try:
+        served = build_case(case)
+        server = Server([served], bind="tcp://127.0.0.1:*", threads=case.threads)
+        address = server.start()
+    except (ValueError, OSError) as exc:  # as the case server says it (``_host_main``)
+        return Accuracy(failure=" ".join(str(exc).split()))
+    try:
+        with Client(address, timeout=60.0) as client:
+            info = client.describe()
+            times = info.start_offset + info.dt * np.arange(info.steps)
+            frames = np.stack([client.query(float(t)).z.reshape(-1) for t in times])
+            points = np.asarray(info.points)
+    finally:
+        server.stop()
+    return Accuracy(*_errors(case, points, times - info.start_offset, frames))
+
+
+def _case_name(case: Case) -> str:
+    return f"{case.scene} {case.lattice_label} {case.model_label} {case.evaluator} ({case.knobs})"
+
+
+def _measure_one(
+    host: CaseServer, case: Case, rounds: int, accuracy: Accuracy | None
+) -> Measurement:
+    if accuracy is not None and accuracy.failure is not None:
+        return Measurement(case, failure=accuracy.failure)
     try:
         address, build_s = host.serve(case)
     except SceneError as exc:
@@ -421,15 +478,16 @@ def _measure_one(host: CaseServer, case: Case, rounds: int) -> Measurement:
             evaluator_info = {"kind": info.evaluator, **info.evaluator_info}
     finally:
         host.done()
-    relative, max_abs = _errors(case, points, times - info.start_offset, frames)
+    if accuracy is None:
+        accuracy = Accuracy(*_errors(case, points, times - info.start_offset, frames))
     return Measurement(
         case,
         p50_us=float(np.percentile(latencies, 50)),
         p99_us=float(np.percentile(latencies, 99)),
         mean_us=float(np.mean(latencies)),
         samples=int(latencies.size),
-        relative_l2=relative,
-        max_abs_error=max_abs,
+        relative_l2=accuracy.relative_l2,
+        max_abs_error=accuracy.max_abs_error,
         build_s=build_s,
         evaluator_info=evaluator_info,
     )

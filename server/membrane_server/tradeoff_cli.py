@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from membrane_cli.arguments import bounded_int
+from membrane_models.executors import add_executor_arguments, executor_from_args
 
 __all__ = ["add_tradeoff"]
 
@@ -26,7 +27,9 @@ def add_tradeoff(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]
             "the onnxruntime knobs, serve the scene from a real server process, sweep its time "
             "grid with a real client, and record p50/p99 query latency and the relative L2 "
             "error against the exact solution. Writes a markdown table and a log-log Pareto "
-            "plot. Exit code 1 when no case could be measured."
+            "plot. With --executor ray the cases' errors are measured in parallel first, each "
+            "case served by a server of its own in a Ray task; the timings stay serial. Exit "
+            "code 1 when no case could be measured."
         ),
     )
     # Required: a default path would overwrite whatever docs/ the current directory holds.
@@ -51,6 +54,7 @@ def add_tradeoff(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]
         "--rounds", type=bounded_int(2, why='the first sweep warms up'), default=6, metavar="N",
         help="sweeps over the time grid per case, the first untimed (default 6)",
     )  # fmt: skip
+    add_executor_arguments(parser)  # the cases' accuracy; the timings are serial whatever it is
     parser.set_defaults(handler=_run_tradeoff)
 
 
@@ -71,6 +75,7 @@ def _run_tradeoff(args: argparse.Namespace) -> int:
     if plot_path is not None:
         import matplotlib  # noqa: F401  (fail before measuring when the plot extra is missing)
 
+    executor = executor_from_args(args)
     cases = plan_cases(args.scene or list(SCENE_PROBLEMS), quick=args.quick)
 
     def progress(done: int, total: int, case: Case, measurement: Measurement) -> None:
@@ -85,7 +90,8 @@ def _run_tradeoff(args: argparse.Namespace) -> int:
             outcome = f"not measured: {measurement.failure}"
         print(f"[{done}/{total}] {what}: {outcome}", file=sys.stderr, flush=True)
 
-    measurements = measure_cases(cases, rounds=args.rounds, progress=progress)
+    parallel = None if executor.name == "serial" else executor
+    measurements = measure_cases(cases, rounds=args.rounds, progress=progress, executor=parallel)
     text = markdown_report(
         measurements,
         _command_line(args),
@@ -112,4 +118,6 @@ def _command_line(args: argparse.Namespace) -> str:
     for scene in args.scene or []:
         words += ["--scene", scene]
     words += ["--rounds", str(args.rounds)]
+    if args.executor == "ray" or args.ray_address is not None:  # the same figures, sooner
+        words += ["--executor", "ray"]
     return shlex.join(words)

@@ -170,3 +170,25 @@ def test_a_model_of_a_problem_variant_is_planned_on_its_problems_scene(
     cases = plan_cases(["rope", "rope-plucked"], quick=True)
     planned = {(c.scene, c.evaluator) for c in cases if c.model == "smooth-pluck"}
     assert planned == {("rope-plucked", kind) for kind in ("network", "separable", "table")}
+
+
+@pytest.mark.slow
+def test_accuracy_on_a_local_ray_is_the_serial_runs_to_the_last_digit(
+    test_models: dict[str, TestModel],
+) -> None:
+    from membrane_models.executors import RayExecutor
+
+    model = str(test_models["membrane"].manifest_path)
+    cases = [
+        Case("membrane", model, "separable", (5, 5)),
+        Case("membrane", None, "exact", (5, 5), rtol=1e-3, on_demand=True),
+        Case("membrane", "no-such-model", "network", (5, 5)),
+    ]
+    serial = measure_cases(cases, rounds=2)
+    on_ray = measure_cases(cases, rounds=2, executor=RayExecutor(workers=2))
+    assert [m.failure is None for m in on_ray] == [True, True, False]
+    assert on_ray[2].failure == serial[2].failure and "no-such-model" in (on_ray[2].failure or "")
+    for ray_case, serial_case in zip(on_ray[:2], serial[:2], strict=True):
+        assert ray_case.relative_l2 == serial_case.relative_l2 > 1e-6
+        assert ray_case.max_abs_error == serial_case.max_abs_error
+        assert ray_case.samples == serial_case.samples == 101  # the timings: serial, as ever

@@ -22,8 +22,9 @@ import logging
 import os
 import tempfile
 import zipfile
-from collections.abc import Mapping, Sequence
-from dataclasses import asdict, fields
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -38,11 +39,48 @@ from membrane_models.fem.models import Model
 from membrane_models.fem.tables import FootprintTables, LiveTables, live_tables
 from membrane_models.live.tabulated_basis import frozen
 
-__all__ = ["FORMAT", "TableCache", "cache_directory", "cached_tables", "table_key"]
+__all__ = [
+    "FORMAT",
+    "CacheUse",
+    "TableCache",
+    "cache_directory",
+    "cached_tables",
+    "recorded_entries",
+    "table_key",
+]
 
 logger = logging.getLogger(__name__)
 FORMAT = 2  # bump when the tables' meaning changes without a change to the fem sources
 _SOURCES = Path(__file__).resolve().parent
+
+
+@dataclass(frozen=True)
+class CacheUse:
+    """An entry a build used: its file's name, and whether it was built (else found)."""
+
+    name: str
+    built: bool
+
+
+# The open ``recorded_entries`` blocks' lists (a stack: blocks may nest).
+_RECORDERS: list[list[CacheUse]] = []
+
+
+@contextmanager
+def recorded_entries() -> Iterator[list[CacheUse]]:
+    """The entries any ``TableCache`` of this process finds or stores inside the block, in
+    order (``membrane caches`` reports them and checks they are where the command looks)."""
+    used: list[CacheUse] = []
+    _RECORDERS.append(used)
+    try:
+        yield used
+    finally:
+        _RECORDERS.remove(used)
+
+
+def _record(path: Path, built: bool) -> None:
+    for used in _RECORDERS:
+        used.append(CacheUse(path.name, built))
 
 
 def cache_directory() -> Path:
@@ -125,6 +163,7 @@ class TableCache:
         if meta.get("key") != key or meta.get("digest") != _digest(arrays):
             logger.warning("fem cache entry %s does not match its key: rebuilding it", path)
             return None
+        _record(path, built=False)
         return meta, arrays
 
     def store(self, key: str, tables: LiveTables) -> Path:
@@ -148,6 +187,7 @@ class TableCache:
         except BaseException:
             Path(temporary).unlink(missing_ok=True)
             raise
+        _record(self.path(key), built=True)
         return self.path(key)
 
 

@@ -94,9 +94,7 @@ def test_a_batch_of_64_is_64_lone_steps_bit_for_bit(hold: str) -> None:
     together = list(alone)
     for k in range(6):
         frames = [(i + k) % 4 == 0 for i in range(64)]
-        alone_results = [
-            engine.step(s, _loads(i, k), frame=frames[i]) for i, s in enumerate(alone)
-        ]
+        alone_results = [engine.step(s, _loads(i, k), frame=frames[i]) for i, s in enumerate(alone)]
         batch = engine.step_loads(together, [_loads(i, k) for i in range(64)], frames)
         for one, many in zip(alone_results, batch, strict=True):
             assert not isinstance(many, LiveError)
