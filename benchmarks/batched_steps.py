@@ -4,6 +4,8 @@
 - ``single``: one client stepping its N sessions round-robin, one ``step`` request at a time
   (what the serving loop sees one by one: the unbatched baseline);
 - ``steps``: the same client, one ``steps`` request per round of all N (``step_many``);
+- ``columns``: the same client, one ``step_columns`` request per round of all N, its loads
+  one array (``step_columns``; loads only);
 - ``peers``: N peers (a DEALER socket each, one session each, in this one process) that each
   send their step and then read their reply, every round: the steps queue while the serving
   loop works, and it takes them together (``--max-batch``, default 256) ...
@@ -27,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import subprocess
 import sys
@@ -35,11 +38,12 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+import numpy as np
 import zmq
 
 from membrane_client import Client
 from membrane_client.protocol import Request, decode
-from membrane_client.session import Load, Probe, Session, step_many
+from membrane_client.session import Load, Probe, Session, step_columns, step_many
 
 MEMBRANE = [sys.executable, "-m", "membrane_cli"]
 COUNTS = (1, 8, 64, 256)
@@ -53,14 +57,21 @@ def _inputs(kind: str, index: int) -> dict[str, Any]:
 
 
 def _client_rate(
-    client: Client, sessions: list[Session], batched: bool, seconds: float, kind: str
+    client: Client, sessions: list[Session], mode: str, seconds: float, kind: str
 ) -> float:
+    """Steps a second of one client stepping all its sessions every round: one ``step`` at a
+    time (``single``), one ``steps`` request (``steps``) or one ``step_columns`` request of
+    an array of loads (``columns``, loads only) a round."""
     steps, rounds = 0, 0
     started = time.perf_counter()
     deadline = started + seconds
     while time.perf_counter() < deadline:
         frame = rounds % 10 == 9
-        if batched:
+        if mode == "columns":
+            rows = np.array([[*ld.at, ld.force, ld.radius] for i in range(len(sessions))
+                             for ld in _inputs(kind, i)["loads"]])  # fmt: skip
+            step_columns(client, sessions, rows, frames=frame)
+        elif mode == "steps":
             items = [(s, {**_inputs(kind, i), "frame": frame}) for i, s in enumerate(sessions)]
             step_many(client, items)
         else:
@@ -198,8 +209,11 @@ def main() -> int:
     with servers[0] as address, servers[1] as unbatched, Client(address, timeout=30.0) as client:
         for count in COUNTS:
             sessions = [client.session("membrane-live") for _ in range(count)]
-            single = _client_rate(client, sessions, False, args.seconds, args.input)
-            batch = _client_rate(client, sessions, True, args.seconds, args.input)
+            single = _client_rate(client, sessions, "single", args.seconds, args.input)
+            batch = _client_rate(client, sessions, "steps", args.seconds, args.input)
+            columns = math.nan
+            if args.input == "load":
+                columns = _client_rate(client, sessions, "columns", args.seconds, args.input)
             for session in sessions:
                 session.close()
             peers = _peers_rate(address, count, args.seconds, args.input)
@@ -207,9 +221,11 @@ def main() -> int:
             rows.append({"sessions": count, "input": args.input,
                          "single_steps_per_s": round(single),
                          "steps_op_steps_per_s": round(batch),
+                         "columns_steps_per_s": round(columns) if columns == columns else None,
                          "peers_steps_per_s": round(peers),
                          "peers_unbatched_steps_per_s": round(alone),
                          "steps_op_over_single": round(batch / single, 2),
+                         "columns_over_single": round(columns / single, 2),
                          "peers_over_unbatched": round(peers / alone, 2),
                          "peers_over_single": round(peers / single, 2)})  # fmt: skip
             print(json.dumps(rows[-1]), file=sys.stderr, flush=True)

@@ -57,6 +57,7 @@ __all__ = [
     "Op",
     "Request",
     "RequestError",
+    "StepColumns",
     "check_reply",
     "decode",
     "encode",
@@ -104,6 +105,7 @@ class Op(StrEnum):
     RESET = "reset"
     CLOSE = "close"
     STEPS = "steps"  # several sessions' steps in one request (a client of many environments)
+    STEP_COLUMNS = "step_columns"  # many sessions' steps of loads alone, as columns (arrays)
 
 
 class ErrorCode(StrEnum):
@@ -142,6 +144,41 @@ class RequestError(UserError):
         self.request_id: int | None = None if request is None else request.id
 
 
+@dataclass(frozen=True, slots=True)
+class StepColumns:
+    """A ``step_columns`` request's columns, checked for form (each session's step then as a
+    ``step`` of loads alone: its k and token, its loads checked by the engine).
+
+    Attributes:
+        sessions: the sessions' ids, each at most once.
+        k: each session's step index (its step count).
+        tokens: each session's token (None where a session has none).
+        loads: (sessions, loads, dims + 2) float64: each load's centre, force and radius.
+        frames: whether each session's frame is sent.
+    """
+
+    sessions: list[str]
+    k: list[int]
+    tokens: list[str | None]
+    loads: Any  # a numpy array (the protocol module imports numpy through the codec only)
+    frames: list[bool]
+
+    def to_wire(self) -> dict[str, Any]:
+        """The columns as the request's fields (a list of frame flags sent as one when equal)."""
+        frames: list[bool] | bool = self.frames
+        if len(set(self.frames)) == 1:
+            frames = self.frames[0]
+        columns: dict[str, Any] = {
+            "sessions": self.sessions,
+            "k": self.k,
+            "loads": pack_array(self.loads, "<f8"),
+            "frames": frames,
+        }
+        if any(token is not None for token in self.tokens):
+            columns["tokens"] = self.tokens
+        return columns
+
+
 @dataclass(slots=True)
 class Request:
     """One request as the wire carries it (docs/PROTOCOL.md, "Requests"): the client builds
@@ -169,6 +206,7 @@ class Request:
     repeat: int = 1
     initial: dict[str, Any] | None = None  # open: {displacement, velocity} arrays
     steps: list[Any] | None = None  # steps: each item a step's map (its own session, k, token)
+    columns: StepColumns | None = None  # step_columns: the sessions' steps, column by column
     token: str | None = None  # live ops: the Session object's own token (re-sends carry it)
 
     def to_wire(self) -> bytes:
@@ -188,6 +226,8 @@ class Request:
             message["lookahead"] = True
         if self.repeat != 1:
             message["repeat"] = self.repeat
+        if self.columns is not None:
+            message.update(self.columns.to_wire())
         return encode(message)
 
     @classmethod
@@ -249,18 +289,16 @@ class Request:
         if self.op == Op.STEPS:
             self._read_batch(message)
             return
+        if self.op == Op.STEP_COLUMNS:
+            self._read_columns(message)
+            return
         if self.op not in _SCENE_OPS:  # other ops ignore every other field
             return
         self._read_scene(message)
         if self.op in _LIVE_OPS:
             self._read_live_fields(message)
         if self.op in _FRAME_OPS:
-            self.dtype = dtype = message.get("dtype", "<f4")
-            if dtype not in ARRAY_DTYPES:
-                kinds = list(ARRAY_DTYPES)
-                self._refuse(
-                    ErrorCode.BAD_REQUEST, f"'dtype' must be one of {kinds}, got {preview(dtype)}"
-                )
+            self._read_dtype(message)
         if self.op != Op.QUERY:
             return
         if "t" not in message:
@@ -329,6 +367,64 @@ class Request:
             reason = f"a steps request takes at most {MAX_BATCH_STEPS} steps in all, got {total}"
             self._refuse(ErrorCode.BAD_REQUEST, reason)
         self.steps = items
+
+    def _read_columns(self, message: dict[str, Any]) -> None:
+        """``step_columns``: equal-length columns of distinct sessions, their k, tokens and
+        frame flags, and their loads as one (sessions, loads, dims + 2) array."""
+        self._read_scene(message)
+        self._read_dtype(message)
+        sessions = message.get("sessions")
+        if (
+            type(sessions) is not list
+            or not 1 <= len(sessions) <= MAX_BATCH_STEPS
+            or not all(type(s) is str and len(s) <= _SESSION for s in sessions)
+        ):
+            reason = (
+                f"'sessions' must be a list of 1 to {MAX_BATCH_STEPS} session ids (strings of "
+                f"at most {_SESSION} characters)"
+            )
+            self._refuse(ErrorCode.BAD_REQUEST, reason)
+        n = len(sessions)
+        if len(set(sessions)) != n:
+            self._refuse(ErrorCode.BAD_REQUEST, "a session appears at most once in 'sessions'")
+        ks = message.get("k")
+        if type(ks) is not list or len(ks) != n or not all(type(k) is int and k >= 0 for k in ks):
+            self._refuse(ErrorCode.BAD_REQUEST, f"'k' must be a list of {n} ints >= 0")
+        tokens = message.get("tokens", [None] * n)
+        if (
+            type(tokens) is not list
+            or len(tokens) != n
+            or not all(t is None or (type(t) is str and len(t) <= MAX_TOKEN_CHARS) for t in tokens)
+        ):
+            reason = f"'tokens' must be a list of {n} tokens (strings, or nil)"
+            self._refuse(ErrorCode.BAD_REQUEST, reason)
+        frames = message.get("frames", True)
+        if type(frames) is bool:
+            frames = [frames] * n
+        if type(frames) is not list or len(frames) != n or not all(type(f) is bool for f in frames):
+            self._refuse(ErrorCode.BAD_REQUEST, f"'frames' must be true, false or {n} of them")
+        self.columns = StepColumns(sessions, ks, tokens, self._load_columns(message, n), frames)
+
+    def _load_columns(self, message: dict[str, Any], n: int) -> Any:
+        try:
+            loads = unpack_array(message.get("loads"), max_dims=3)
+        except ProtocolError as exc:
+            self._refuse(ErrorCode.BAD_REQUEST, f"'loads': {exc}")
+        if loads.ndim != 3 or loads.shape[0] != n or loads.shape[1] > MAX_LOADS:
+            reason = (
+                f"'loads' must be an array of shape ({n}, loads <= {MAX_LOADS}, dims + 2), got "
+                f"{loads.ndim} axes"
+            )
+            self._refuse(ErrorCode.BAD_REQUEST, reason)
+        return loads.astype("<f8")
+
+    def _read_dtype(self, message: dict[str, Any]) -> None:
+        self.dtype = dtype = message.get("dtype", "<f4")
+        if dtype not in ARRAY_DTYPES:
+            kinds = list(ARRAY_DTYPES)
+            self._refuse(
+                ErrorCode.BAD_REQUEST, f"'dtype' must be one of {kinds}, got {preview(dtype)}"
+            )
 
     def _flag(self, message: dict[str, Any], key: str) -> bool:
         value = message.get(key, False)

@@ -22,7 +22,7 @@ import secrets
 import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -42,12 +42,13 @@ from membrane_client.live_schema import (
     Tool,
     ToolReading,
 )
-from membrane_client.protocol import Op, read_reply
+from membrane_client.protocol import Op, StepColumns, read_reply, unpack_array
 
 if TYPE_CHECKING:
     from membrane_client.client import Client
 
 __all__ = [
+    "ColumnFrames",
     "Grasp",
     "GraspReading",
     "LiveFrame",
@@ -57,6 +58,7 @@ __all__ = [
     "Session",
     "Tool",
     "ToolReading",
+    "step_columns",
     "step_many",
 ]
 
@@ -246,6 +248,74 @@ def step_many(
         session.k = frame.k
         results.append(frame)
     return results
+
+
+class ColumnFrames(NamedTuple):
+    """What a ``step_columns`` request gave, session by session in the order sent.
+
+    Attributes:
+        k: (sessions,) each session's steps taken after this request (-1 where refused).
+        t: (sessions,) each session's time, k dt (NaN where refused).
+        framed: (frames,) the indices of the sessions whose frame was sent.
+        z: (frames, *lattice) those frames, in ``framed``'s order.
+        refused: the refused sessions' indices and the server's reasons.
+        revision: the scene's revision.
+    """
+
+    k: np.ndarray
+    t: np.ndarray
+    framed: np.ndarray
+    z: np.ndarray
+    refused: dict[int, ServerError]
+    revision: str
+
+
+def step_columns(
+    client: Client,
+    sessions: Sequence[Session],
+    loads: ArrayLike,
+    frames: bool | Sequence[bool] = True,
+    dtype: str = "<f4",
+) -> ColumnFrames:
+    """Many sessions' steps under loads alone, in one request of columns (the ``step_columns``
+    op, docs/PROTOCOL.md): ``loads[i]`` is session i's loads, rows of (centre, force, radius) in
+    the scene's units, ``(sessions, loads, dims + 2)`` (or ``(sessions, dims + 2)``: one load
+    each). Each session's step is the ``step`` it stands for, bit for bit, taken exactly once;
+    a refused one (``refused``) stops no other. The sessions are this client's, on one scene,
+    each at most once.
+
+    Raises:
+        Timeout: no reply on any retry (a re-sent request is answered from the sessions'
+            stores, never taken twice); ServerError: the request refused whole; MembraneError:
+            a session of another client or another scene.
+    """
+    rows = np.asarray(loads, dtype=np.float64)
+    if rows.ndim == 2:
+        rows = rows[:, None, :]
+    scenes = {session.scene for session in sessions}
+    if any(session.client is not client for session in sessions) or len(scenes) > 1:
+        raise MembraneError("step_columns takes sessions of this client on one scene")
+    flags = [frames] * len(sessions) if isinstance(frames, bool) else [bool(f) for f in frames]
+    columns = StepColumns(
+        [s.id for s in sessions], [s.k for s in sessions], [s.token for s in sessions], rows, flags
+    )
+    reply = client.request(Op.STEP_COLUMNS, scene=scenes.pop() if scenes else None,
+                           columns=columns, dtype=dtype)  # fmt: skip
+    try:
+        ks, framed = np.asarray(reply["k"], dtype=np.int64), np.asarray(reply["framed"], np.intp)
+        answer = ColumnFrames(
+            ks, np.asarray(reply["t"], dtype=np.float64), framed, unpack_array(reply["z"]),
+            {int(i): ServerError(str(code), str(message)) for i, code, message in reply["refused"]},
+            str(reply["revision"]),
+        )  # fmt: skip
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ProtocolError(f"a step_columns reply is malformed: {exc}") from None
+    if ks.shape != (len(sessions),) or answer.z.shape[:1] != framed.shape:
+        raise ProtocolError("a step_columns reply's columns do not match its sessions")
+    for session, k in zip(sessions, ks.tolist(), strict=True):
+        if k >= 0:
+            session.k = k
+    return answer
 
 
 def _step_fields(

@@ -302,4 +302,5 @@ _LIVE_OPS: dict[str, _LiveHandler] = {
     Op.RESET: LiveOps.reset,
     Op.CLOSE: LiveOps.close,
     Op.STEPS: LiveOps.steps,
+    Op.STEP_COLUMNS: LiveOps.step_columns,
 }

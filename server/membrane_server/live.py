@@ -64,6 +64,7 @@ from membrane_models.live import (
 from membrane_models.live.inputs import MAX_DEPTH
 from membrane_server.engines import build_engine
 from membrane_server.sessions import LiveSession, Sent, SessionTable
+from membrane_server.step_columns import step_columns
 
 if TYPE_CHECKING:
     from membrane_server.scene import Scene
@@ -232,6 +233,10 @@ class LiveOps:
                 answer = encode(error_reply(request.id, answer.code, reason))
             replies.append(answer)
         return {"steps": replies}
+
+    def step_columns(self, request: Request, peer: str = "") -> dict[str, Any]:
+        """Many sessions' steps of loads alone, as columns (``step_columns``)."""
+        return step_columns(self.table, self._scene_of(request), request, peer)
 
     def step_run(self, requests: Sequence[tuple[Request, str]]) -> list[bytes | RequestError]:
         """``step`` requests (each with its peer) answered in order, as if one by one: the steps

@@ -16,7 +16,7 @@ import time
 from collections import Counter, OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 from membrane_client.protocol import (
     ErrorCode,
@@ -46,6 +46,8 @@ __all__ = [
     "LiveSession",
     "Sent",
     "SessionTable",
+    "StoredStep",
+    "same_sender",
 ]
 
 DEFAULT_MAX_SESSIONS = 64
@@ -69,11 +71,32 @@ class Sent(NamedTuple):
         return encode({**decode(self.reply), "id": request.id})
 
     def resent_by(self, request: Request) -> bool:
-        """Whether ``request`` re-sends this one: the same Session token (and, without a token,
-        the same request id: all a client without tokens can be told apart by)."""
-        if request.token is not None or self.token is not None:
-            return request.token == self.token
-        return request.id == self.request_id
+        """Whether ``request`` re-sends this one (``same_sender``)."""
+        return same_sender(self.token, self.request_id, request.token, request.id)
+
+
+def same_sender(token: str | None, request_id: int, again: str | None, again_id: int) -> bool:
+    """Whether a request (token ``again``, id ``again_id``) re-sends the one stored: the same
+    Session token (and, without a token, the same request id: all a client without tokens can
+    be told apart by)."""
+    if again is not None or token is not None:
+        return again == token
+    return again_id == request_id
+
+
+class StoredStep(Protocol):
+    """A session's latest step as kept for a re-send: a lone step's reply (``Sent``), or a step
+    of a ``step_columns`` request kept as its values (``step_columns.ColumnStep``)."""
+
+    @property
+    def token(self) -> str | None: ...
+
+    @property
+    def request_id(self) -> int: ...
+
+    def reply_to(self, request: Request) -> bytes: ...
+
+    def resent_by(self, request: Request) -> bool: ...
 
 
 @dataclass
@@ -87,7 +110,7 @@ class LiveSession:
     opened: Sent  # the open (a re-sent open gets its reply again)
     owner: str = ""  # the peer that opened it ("key:..." binds it to that CurveZMQ key)
     k: int = 0  # steps taken (counted here: an engine's state type is its own)
-    last_step: Sent | None = None  # the latest step
+    last_step: StoredStep | None = None  # the latest step
     last_k: int = -1  # the ``k`` the latest step asked for (a re-send asks it again)
     readings: tuple[ProbeReading, ...] = ()
     grasp_readings: tuple[GraspReading, ...] = ()

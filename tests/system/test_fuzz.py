@@ -201,6 +201,8 @@ def expected_errors(body: list[bytes], scenes: dict[str, ServedScene]) -> tuple[
         broken |= _live_errors(op, message, scenes)
     elif op == Op.STEPS:
         broken |= _steps_errors(message)
+    elif op == Op.STEP_COLUMNS:
+        broken |= _columns_errors(message, scenes)
     return broken, request_id
 
 
@@ -234,6 +236,24 @@ def _steps_errors(message: dict[str, Any]) -> set[str]:
         for item in items
     ]
     return {ErrorCode.BAD_REQUEST} if sum(repeats) > MAX_BATCH_STEPS else set()
+
+
+def _columns_errors(message: dict[str, Any], scenes: dict[str, ServedScene]) -> set[str]:
+    """A ``step_columns`` request (PROTOCOL.md): refused whole when its columns are out of
+    form; columns in form reach the scene, a film here (or none named, or an unknown one)."""
+    sessions = message.get("sessions")
+    in_form = (
+        isinstance(message.get("scene"), str | None)
+        and message.get("dtype", "<f4") in ARRAY_DTYPES
+        and type(sessions) is list
+        and 1 <= len(sessions) <= MAX_BATCH_STEPS
+        and all(type(s) is str and len(s) <= 64 for s in sessions)
+        and len(set(sessions)) == len(sessions)
+    )
+    if not in_form:
+        return {ErrorCode.BAD_REQUEST}
+    # k, tokens, frames and the loads' array are checked next: refused, or on to the scene.
+    return {ErrorCode.BAD_REQUEST, ErrorCode.NOT_LIVE} | _scene_errors(message, scenes)
 
 
 def _scene_errors(message: dict[str, Any], scenes: dict[str, ServedScene]) -> set[str]:

@@ -1,0 +1,257 @@
+"""The ``step_columns`` op: many sessions' steps of loads alone, as columns.
+
+A client that runs many environments (a reinforcement-learning gym) steps all of them every
+tick under loads alone. The ``steps`` op already takes them in one request, but each item is a
+``step`` map read, checked and answered by itself: per item, about as much Python as the step's
+own arithmetic. Here the request is columns (the sessions, their k and tokens, one array of
+every load, the frame flags) and so is the reply (each session's k and t, one array of the
+frames sent), so what is left per session is its own step (``BatchedEngine.step_loads``, the
+same call a lone step of loads makes: the same bits by construction) and its bookkeeping.
+
+Each session's step is still a ``step``: taken exactly once (its k and token; a re-sent request
+is answered from each session's store), refused alone (an unknown session, a wrong k, a load
+the engine refuses: the others are taken). What is stored for a re-send is the step's values
+(``ColumnStep``); the reply a lone ``step`` re-send of it would get is encoded only if one asks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from membrane_client.live_schema import LiveStepReply
+from membrane_client.protocol import (
+    ErrorCode,
+    Request,
+    RequestError,
+    StepColumns,
+    decode,
+    encode,
+    ok_reply,
+    pack_array,
+    preview,
+    unpack_array,
+)
+from membrane_models.live import LiveError, Load
+from membrane_models.live.interface import BatchedEngine
+from membrane_server.sessions import LiveSession, Sent, StoredStep, same_sender
+
+if TYPE_CHECKING:
+    from membrane_server.served import ServedScene
+    from membrane_server.sessions import SessionTable
+
+__all__ = ["ColumnStep", "step_columns"]
+
+
+@dataclass(frozen=True, slots=True)
+class ColumnStep:
+    """A step taken in a ``step_columns`` request, kept as its values (``StoredStep``).
+
+    Attributes:
+        token, request_id: what tells a re-send (``sessions.same_sender``).
+        k, t: the session's step count and time after it.
+        frame: the frame as sent (in ``dtype``, lattice-shaped), or None when none was asked.
+        session, revision: the session's id and its scene's revision.
+    """
+
+    token: str | None
+    request_id: int
+    k: int
+    t: float
+    frame: np.ndarray | None
+    dtype: str
+    session: str
+    revision: str
+
+    def resent_by(self, request: Request) -> bool:
+        return same_sender(self.token, self.request_id, request.token, request.id)
+
+    def reply_to(self, request: Request) -> bytes:
+        """The reply a lone ``step`` of these values would have had (under ``request``'s id)."""
+        fields = LiveStepReply(
+            session=self.session, k=self.k, t=self.t, revision=self.revision, probes=(),
+            grasps=(), tools=(), z=self.frame, token=None, dtype=self.dtype,
+        ).to_reply_fields()  # fmt: skip
+        return encode(ok_reply(request.id, **fields))
+
+
+class _Columns:
+    """The reply's columns as they fill: each session's k and t (-1 and NaN where refused),
+    the frames sent, and the refusals ([index, code, message])."""
+
+    def __init__(self, n: int) -> None:
+        self.k, self.t = [-1] * n, [math.nan] * n
+        self.frames: dict[int, np.ndarray] = {}
+        self.refused: list[list[Any]] = []
+
+    def took(self, index: int, k: int, t: float, frame: np.ndarray | None) -> None:
+        self.k[index], self.t[index] = k, t
+        if frame is not None:
+            self.frames[index] = frame
+
+    def refuse(self, index: int, error: RequestError) -> None:
+        self.refused.append([index, str(error.code), str(error)])
+
+    def fields(self, served: ServedScene, dtype: str) -> dict[str, Any]:
+        framed = sorted(self.frames)
+        if framed:
+            z = np.stack([self.frames[i] for i in framed])
+        else:
+            z = np.empty((0, *served.shape), dtype=dtype)
+        return {
+            "k": self.k,
+            "t": self.t,
+            "framed": framed,
+            "z": pack_array(z, dtype),
+            "refused": sorted(self.refused),
+            "revision": served.revision,
+        }
+
+
+def step_columns(
+    table: SessionTable, served: ServedScene, request: Request, peer: str
+) -> dict[str, Any]:
+    """The reply's fields to a ``step_columns`` request on ``served`` (module docstring).
+
+    Raises:
+        RequestError: the whole request refused (a scene that is not live, or whose engine
+            steps one session at a time; loads whose rows are not the scene's width).
+    """
+    columns = request.columns
+    assert columns is not None  # the protocol reads them for this op
+    engine = served.live
+    if engine is None:
+        raise RequestError(ErrorCode.NOT_LIVE, f"scene {served.name} is a film, not live")
+    if not isinstance(engine, BatchedEngine):
+        reason = f"scene {served.name} steps its sessions one at a time: send 'steps' instead"
+        raise RequestError(ErrorCode.BAD_REQUEST, reason)
+    dims = engine.spatial_dims
+    if columns.loads.shape[2] != dims + 2:
+        reason = (
+            f"'loads' rows on scene {served.name} are (centre ({dims} numbers), force, radius): "
+            f"{dims + 2} numbers, got {columns.loads.shape[2]}"
+        )
+        raise RequestError(ErrorCode.BAD_REQUEST, reason)
+    answer = _Columns(len(columns.sessions))
+    taken = _take_all(table, served, request, peer, dims, answer)
+    for batch in _by_engine(taken):
+        _step_batch(table, batch, request, columns, answer)
+    return answer.fields(served, request.dtype)
+
+
+_Taken = tuple[int, LiveSession, tuple[Load, ...]]
+
+
+def _take_all(
+    table: SessionTable,
+    served: ServedScene,
+    request: Request,
+    peer: str,
+    dims: int,
+    answer: _Columns,
+) -> list[_Taken]:
+    """Each session checked (open, on this scene, its k): ready to step with its loads, or
+    answered from its store (a re-send), or refused."""
+    columns = request.columns
+    assert columns is not None
+    rows = columns.loads.tolist()  # Python floats, as a lone step's loads are read
+    taken: list[_Taken] = []
+    for index, session_id in enumerate(columns.sessions):
+        try:
+            session = table.require(session_id, peer)
+            if session.served.name != served.name:
+                reason = f"session {index} is on scene {session.served.name}, not {served.name}"
+                raise RequestError(ErrorCode.BAD_REQUEST, reason)
+            k = columns.k[index]
+            if k != session.k:
+                stored = _resent(table, session, k, columns.tokens[index], request.id, index)
+                frame = stored[2] if columns.frames[index] else None
+                answer.took(index, stored[0], stored[1], frame)
+                continue
+        except RequestError as exc:
+            answer.refuse(index, exc)
+            continue
+        loads = tuple([Load(tuple(row[:dims]), row[dims], row[dims + 1]) for row in rows[index]])
+        taken.append((index, session, loads))
+    return taken
+
+
+def _resent(
+    table: SessionTable,
+    session: LiveSession,
+    k: int,
+    token: str | None,
+    request_id: int,
+    index: int,
+) -> tuple[int, float, np.ndarray | None]:
+    """A step the session has taken already: its stored values when this is its re-send, else
+    the ``step_mismatch`` refusal."""
+    last = session.last_step
+    if (
+        k == session.last_k
+        and last is not None
+        and same_sender(last.token, last.request_id, token, request_id)
+    ):
+        table.counts["resent"] += 1
+        return _stored_values(last)
+    table.counts["mismatches"] += 1
+    raise RequestError(
+        ErrorCode.STEP_MISMATCH,
+        f"session {index} has taken {session.k} steps: its next step is k = {session.k}, this "
+        f"one asked for k = {preview(k)}",
+    )
+
+
+def _stored_values(last: StoredStep) -> tuple[int, float, np.ndarray | None]:
+    """k, t and the frame of a stored step (a lone step's reply is read back)."""
+    if isinstance(last, ColumnStep):
+        return last.k, last.t, last.frame
+    assert isinstance(last, Sent)  # the two kinds of stored step
+    reply = decode(last.reply)
+    frame = None if "z" not in reply else unpack_array(reply["z"])
+    return int(reply["k"]), float(reply["t"]), frame
+
+
+def _by_engine(taken: list[_Taken]) -> list[list[_Taken]]:
+    """The taken steps grouped by their sessions' engine (a reload leaves older sessions on
+    the engine they opened on), each group in the request's order."""
+    groups: dict[int, list[_Taken]] = {}
+    for item in taken:
+        groups.setdefault(id(item[1].engine), []).append(item)
+    return list(groups.values())
+
+
+def _step_batch(
+    table: SessionTable,
+    batch: Sequence[_Taken],
+    request: Request,
+    columns: StepColumns,
+    answer: _Columns,
+) -> None:
+    engine = batch[0][1].engine
+    assert isinstance(engine, BatchedEngine)
+    results = engine.step_loads(
+        [session.state for _, session, _ in batch],
+        [loads for _, _, loads in batch],
+        [columns.frames[index] for index, _, _ in batch],
+    )
+    dtype = request.dtype
+    for (index, session, _), result in zip(batch, results, strict=True):
+        if isinstance(result, LiveError):
+            answer.refuse(index, RequestError(ErrorCode.BAD_REQUEST, f"session {index}: {result}"))
+            continue
+        session.apply(result)
+        frame = None
+        if result.frame is not None:
+            frame = np.asarray(result.frame, dtype=np.dtype(dtype)).reshape(session.served.shape)
+        token = columns.tokens[index]
+        session.last_step = ColumnStep(
+            token, request.id, session.k, session.t, frame, dtype,
+            columns.sessions[index], session.served.revision,
+        )  # fmt: skip
+        answer.took(index, session.k, session.t, frame)
+    table.counts["steps"] += len(batch)
