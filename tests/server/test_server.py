@@ -272,7 +272,8 @@ def test_hello_lists_scenes_and_limits(evaluator_server: Server) -> None:
     assert hello.default_scene is None
     assert hello.session == "me"
     film = {"hello", "describe", "query", "stats", "ping"}
-    assert set(hello.ops) == film | {"open", "step", "read", "reset", "close", "steps"}
+    live = {"open", "step", "read", "reset", "close", "steps", "step_columns"}
+    assert set(hello.ops) == film | live
     assert hello.limits is not None and hello.limits.max_request_bytes == MAX_REQUEST_BYTES
 
 
