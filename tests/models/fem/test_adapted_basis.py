@@ -81,6 +81,7 @@ def test_an_added_vector_gives_the_plate_a_whole_build_with_it_gives() -> None:
     assert np.sqrt(np.diag(stiffness)) == pytest.approx(adapted.omega, rel=1e-9)
 
 
+@pytest.mark.slow
 def test_the_sphere_pressed_to_twice_the_thickness_takes_the_full_plates_force() -> None:
     # off the centre, where the 20 modes alone are 5.2 % low at 6 mm (the skin patch's mesh:
     # 5.18 %, docs/NONLINEAR.md); the adapted vector at the tool's centre, measured -0.66 %
