@@ -138,7 +138,11 @@ def unpack_array(obj: Any, max_dims: int = MAX_ARRAY_DIMS) -> np.ndarray:
         raise ProtocolError(
             f"array data is {len(data)} bytes, which does not fit its shape ({len(shape)} axes)"
         )
-    return np.frombuffer(data, dtype=np.dtype(dtype)).reshape(shape)
+    try:  # an empty array may still name axes past numpy's bounds (e.g. [0, 2**62])
+        return np.frombuffer(data, dtype=np.dtype(dtype)).reshape(shape)
+    except (ValueError, OverflowError):
+        reason = f"an array's shape ({len(shape)} axes) is beyond numpy's bounds"
+        raise ProtocolError(reason) from None
 
 
 def _is_count(value: Any) -> bool:

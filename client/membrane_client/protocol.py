@@ -411,10 +411,9 @@ class Request:
         except ProtocolError as exc:
             self._refuse(ErrorCode.BAD_REQUEST, f"'loads': {exc}")
         if loads.ndim != 3 or loads.shape[0] != n or loads.shape[1] > MAX_LOADS:
-            reason = (
-                f"'loads' must be an array of shape ({n}, loads <= {MAX_LOADS}, dims + 2), got "
-                f"{loads.ndim} axes"
-            )
+            got = f"shape {tuple(loads.shape)}" if loads.ndim <= 3 else f"{loads.ndim} axes"
+            wanted = f"({n}, loads <= {MAX_LOADS}, dims + 2)"
+            reason = f"'loads' must be an array of shape {wanted}, got {got}"
             self._refuse(ErrorCode.BAD_REQUEST, reason)
         return loads.astype("<f8")
 

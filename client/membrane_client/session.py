@@ -274,7 +274,7 @@ def step_columns(
     client: Client,
     sessions: Sequence[Session],
     loads: ArrayLike,
-    frames: bool | Sequence[bool] = True,
+    frames: bool | np.bool_ | Sequence[bool] = True,
     dtype: str = "<f4",
 ) -> ColumnFrames:
     """Many sessions' steps under loads alone, in one request of columns (the ``step_columns``
@@ -295,7 +295,10 @@ def step_columns(
     scenes = {session.scene for session in sessions}
     if any(session.client is not client for session in sessions) or len(scenes) > 1:
         raise MembraneError("step_columns takes sessions of this client on one scene")
-    flags = [frames] * len(sessions) if isinstance(frames, bool) else [bool(f) for f in frames]
+    if isinstance(frames, bool | np.bool_):
+        flags = [bool(frames)] * len(sessions)
+    else:
+        flags = [bool(f) for f in frames]
     columns = StepColumns(
         [s.id for s in sessions], [s.k for s in sessions], [s.token for s in sessions], rows, flags
     )

@@ -96,8 +96,13 @@ class RayExecutor:
                 print(f"ray: {len(jobs)} jobs on {where} ({took:.1f} s to start)", flush=True)
             task = ray.remote(num_cpus=1, max_retries=0)(_call)
             refs = [task.remote(job.fn, job.args) for job in jobs]
-            _wait_all(ray, refs, jobs, progress)
-            return list(ray.get(refs))
+            try:
+                _wait_all(ray, refs, jobs, progress)
+                return list(ray.get(refs))
+            except ray.exceptions.RayTaskError as exc:
+                if isinstance(exc.cause, UserError):  # a job's one-line refusal, as serially
+                    raise exc.cause from None
+                raise
         finally:
             if owned:
                 ray.shutdown()

@@ -8,7 +8,7 @@ imported when the command runs.
 from __future__ import annotations
 
 import argparse
-import os
+import tempfile
 from pathlib import Path
 
 from membrane_errors import UserError
@@ -58,6 +58,16 @@ def add_caches(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     parser.set_defaults(handler=_run_caches)
 
 
+def _require_writable(folder: Path) -> None:
+    """Make ``folder`` and write a file in it, or say in one line why not, before any build."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, suffix=".tmp"):
+            pass
+    except OSError as exc:
+        raise UserError(f"--cache-dir: cannot write in {folder}: {exc.strerror or exc}") from None
+
+
 def _run_caches(args: argparse.Namespace) -> int:
     from membrane_models.fem.cache import cache_directory
     from membrane_server.cache_build import build_scene_caches, missing_entries, variants
@@ -65,9 +75,8 @@ def _run_caches(args: argparse.Namespace) -> int:
     executor = executor_from_args(args)
     root = args.cache_dir if args.cache_dir is not None else cache_directory().parent
     root = root.resolve()
-    if root.exists() and not os.access(root, os.W_OK):
-        raise UserError(f"--cache-dir {root}: not writable")
     built = variants(args.scene, args.vary)
+    _require_writable(root / "fem")
     jobs = [Job(v.label, build_scene_caches, (v, str(root))) for v in built]
     print(f"membrane caches: {len(jobs)} scene(s) into {root / 'fem'}", flush=True)
     results = executor.run(jobs)

@@ -123,13 +123,14 @@ def step_columns(
     """
     columns = request.columns
     assert columns is not None  # the protocol reads them for this op
-    engine = served.live
-    if engine is None:
+    live = served.live
+    if live is None:
         raise RequestError(ErrorCode.NOT_LIVE, f"scene {served.name} is a film, not live")
+    engine: object = live
     if not isinstance(engine, BatchedEngine):
         reason = f"scene {served.name} steps its sessions one at a time: send 'steps' instead"
         raise RequestError(ErrorCode.BAD_REQUEST, reason)
-    dims = engine.spatial_dims
+    dims = live.spatial_dims
     if columns.loads.shape[2] != dims + 2:
         reason = (
             f"'loads' rows on scene {served.name} are (centre ({dims} numbers), force, radius): "
@@ -138,8 +139,8 @@ def step_columns(
         raise RequestError(ErrorCode.BAD_REQUEST, reason)
     answer = _Columns(len(columns.sessions))
     taken = _take_all(table, served, request, peer, dims, answer)
-    for batch in _by_engine(taken):
-        _step_batch(table, batch, request, columns, answer)
+    if taken:
+        _step_batch(table, engine, taken, request, columns, answer)
     return answer.fields(served, request.dtype)
 
 
@@ -163,13 +164,15 @@ def _take_all(
     for index, session_id in enumerate(columns.sessions):
         try:
             session = table.require(session_id, peer)
-            if session.served.name != served.name:
-                reason = f"session {index} is on scene {session.served.name}, not {served.name}"
-                raise RequestError(ErrorCode.BAD_REQUEST, reason)
+            _require_on(session, served, index)
             k = columns.k[index]
             if k != session.k:
                 stored = _resent(table, session, k, columns.tokens[index], request.id, index)
-                frame = stored[2] if columns.frames[index] else None
+                frame = None
+                if columns.frames[index]:  # the stored step's, or its end's (its state now)
+                    frame = stored[2]
+                    if frame is None:
+                        frame = _sent_frame(session.engine.frame(session.state), session, request)
                 answer.took(index, stored[0], stored[1], frame)
                 continue
         except RequestError as exc:
@@ -178,6 +181,26 @@ def _take_all(
         loads = tuple([Load(tuple(row[:dims]), row[dims], row[dims + 1]) for row in rows[index]])
         taken.append((index, session, loads))
     return taken
+
+
+def _require_on(session: LiveSession, served: ServedScene, index: int) -> None:
+    """Refuse a session on another scene, or on an earlier revision of this one (opened before
+    a reload: its lattice and engine may differ from the columns' scene)."""
+    if session.served is served:
+        return
+    if session.served.name != served.name:
+        reason = f"session {index} is on scene {session.served.name}, not {served.name}"
+    else:
+        reason = (
+            f"session {index} opened on an earlier revision of scene {served.name} (reloaded "
+            "since): step it with 'step' or 'steps', or open a new session"
+        )
+    raise RequestError(ErrorCode.BAD_REQUEST, reason)
+
+
+def _sent_frame(frame: np.ndarray, session: LiveSession, request: Request) -> np.ndarray:
+    """A frame as sent: in the request's dtype, lattice-shaped."""
+    return np.asarray(frame, dtype=np.dtype(request.dtype)).reshape(session.served.shape)
 
 
 def _resent(
@@ -216,42 +239,29 @@ def _stored_values(last: StoredStep) -> tuple[int, float, np.ndarray | None]:
     return int(reply["k"]), float(reply["t"]), frame
 
 
-def _by_engine(taken: list[_Taken]) -> list[list[_Taken]]:
-    """The taken steps grouped by their sessions' engine (a reload leaves older sessions on
-    the engine they opened on), each group in the request's order."""
-    groups: dict[int, list[_Taken]] = {}
-    for item in taken:
-        groups.setdefault(id(item[1].engine), []).append(item)
-    return list(groups.values())
-
-
 def _step_batch(
     table: SessionTable,
+    engine: BatchedEngine,
     batch: Sequence[_Taken],
     request: Request,
     columns: StepColumns,
     answer: _Columns,
 ) -> None:
-    engine = batch[0][1].engine
-    assert isinstance(engine, BatchedEngine)
+    """Step the taken sessions as one engine call and record each one's step."""
     results = engine.step_loads(
         [session.state for _, session, _ in batch],
         [loads for _, _, loads in batch],
         [columns.frames[index] for index, _, _ in batch],
     )
-    dtype = request.dtype
     for (index, session, _), result in zip(batch, results, strict=True):
         if isinstance(result, LiveError):
             answer.refuse(index, RequestError(ErrorCode.BAD_REQUEST, f"session {index}: {result}"))
             continue
         session.apply(result)
-        frame = None
-        if result.frame is not None:
-            frame = np.asarray(result.frame, dtype=np.dtype(dtype)).reshape(session.served.shape)
-        token = columns.tokens[index]
+        table.counts["steps"] += 1
+        frame = None if result.frame is None else _sent_frame(result.frame, session, request)
         session.last_step = ColumnStep(
-            token, request.id, session.k, session.t, frame, dtype,
+            columns.tokens[index], request.id, session.k, session.t, frame, request.dtype,
             columns.sessions[index], session.served.revision,
         )  # fmt: skip
         answer.took(index, session.k, session.t, frame)
-    table.counts["steps"] += len(batch)

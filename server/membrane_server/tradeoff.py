@@ -442,18 +442,20 @@ def case_accuracy(case: Case) -> Accuracy:
     try:
         served = build_case(case)
         server = Server([served], bind="tcp://127.0.0.1:*", threads=case.threads)
-        address = server.start()
     except (ValueError, OSError) as exc:  # as the case server says it (``_host_main``)
         return Accuracy(failure=" ".join(str(exc).split()))
     try:
+        address = server.start()
         with Client(address, timeout=60.0) as client:
             info = client.describe()
             times = info.start_offset + info.dt * np.arange(info.steps)
             frames = np.stack([client.query(float(t)).z.reshape(-1) for t in times])
             points = np.asarray(info.points)
+        return Accuracy(*_errors(case, points, times - info.start_offset, frames))
+    except (MembraneError, OSError) as exc:  # a bind, a timeout, a refused query: this case's
+        return Accuracy(failure=" ".join(str(exc).split()))
     finally:
         server.stop()
-    return Accuracy(*_errors(case, points, times - info.start_offset, frames))
 
 
 def _case_name(case: Case) -> str:

@@ -117,3 +117,24 @@ def test_variants_built_on_a_local_ray_are_the_serial_builds_bit_for_bit(
             assert np.array_equal(values, on_ray[name][key]), (name, key)
     assert main([*argv, "--cache-dir", str(tmp_path / "serial")]) == 0  # now read back
     assert capsys.readouterr().out.count("0 built, 1 found") == 2
+
+
+def test_a_cache_dir_that_cannot_be_written_is_one_line_before_any_build(
+    tiny_scene: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    code = main(["caches", "--scene", str(tiny_scene), "--cache-dir", str(blocked)])
+    err = capsys.readouterr()
+    assert code == 2 and "cannot write in" in err.err and len(err.err.strip().splitlines()) == 1
+    assert "built" not in err.out
+
+
+def test_recorders_nest() -> None:
+    from membrane_models.fem.cache import _record, recorded_entries
+
+    with recorded_entries() as outer:
+        with recorded_entries() as inner:
+            pass  # equal lists (both empty) when the inner one closes
+        _record(Path("x.npz"), built=True)
+    assert outer == [CacheUse("x.npz", True)] and inner == []

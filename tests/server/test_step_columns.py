@@ -11,7 +11,15 @@ import numpy as np
 import pytest
 
 from membrane_client import Client, ServerError
-from membrane_client.protocol import MAX_BATCH_STEPS, Request, RequestError, StepColumns, decode
+from membrane_client.protocol import (
+    MAX_BATCH_STEPS,
+    Request,
+    RequestError,
+    StepColumns,
+    decode,
+    encode,
+    unpack_array,
+)
 from membrane_client.session import Load, Session, step_columns
 from membrane_server.server import Server
 
@@ -120,8 +128,6 @@ def _columns(**change: Any) -> dict[str, Any]:
     ],
 )
 def test_columns_out_of_form_are_refused_whole(change: dict[str, Any], says: str) -> None:
-    from membrane_client.protocol import encode
-
     with pytest.raises(RequestError, match=says) as refused:
         Request.from_wire(encode(_columns(**change)))
     assert refused.value.code == "bad_request"
@@ -139,3 +145,42 @@ def test_the_scene_must_batch_and_the_rows_fit_it(server: Server) -> None:
         with pytest.raises(ServerError, match="unknown_scene"):
             client.request("step_columns", scene="nope", columns=StepColumns(
                 ["a"], [0], [None], np.zeros((1, 0, 4)), [True]))  # fmt: skip
+
+
+def test_a_session_of_an_earlier_revision_is_refused_alone_before_any_step() -> None:
+    """After a reload a session stays on the scene it opened on (another lattice, perhaps): it
+    is refused, and nothing of the request was stepped first."""
+    from membrane_server.dispatch import Dispatcher
+    from membrane_server.served import ServedScene
+    from membrane_server.sessions import SessionTable
+
+    table = SessionTable(8, 60.0, max_per_peer=8)
+    before = Dispatcher([ServedScene.load("membrane-live")], sessions=table)
+    after = Dispatcher([ServedScene.load("membrane-live")], sessions=table)  # the reload's
+    for dispatcher, session in ((before, "old"), (after, "new")):
+        opened = dispatcher.handle([Request("open", 1, session=session).to_wire()], "p")
+        assert decode(opened.reply)["ok"]
+    columns = StepColumns(["old", "new"], [0, 0], [None, None], _rows(0, 2), [True, True])
+    reply = decode(after.handle([Request("step_columns", 2, columns=columns).to_wire()], "p").reply)
+    assert reply["ok"] and reply["k"] == [-1, 1] and reply["framed"] == [1]
+    assert reply["refused"][0][:2] == [0, "bad_request"]
+    assert "earlier revision" in reply["refused"][0][2]
+    assert table.get("old", "p").k == 0  # type: ignore[union-attr]
+
+
+def test_a_resend_that_asks_a_frame_its_step_did_not_send_gets_its_end(server: Server) -> None:
+    with Client(server.address, timeout=10.0) as client:
+        session = client.session("membrane-live")
+        step_columns(client, [session], _rows(0, 1), frames=False)
+        session.k = 0  # the same step again, this time with its frame
+        again = step_columns(client, [session], _rows(0, 1), frames=True)
+        read = client.request("read", session=session.id, token=session.token)
+        assert again.k.tolist() == [1] and again.framed.tolist() == [0]
+        assert again.z[0].tobytes() == unpack_array(read["z"]).tobytes()
+
+
+def test_an_empty_array_whose_axes_pass_numpys_bounds_is_refused_in_one_line() -> None:
+    loads = {"dtype": "<f8", "shape": [2, 0, 2**62], "data": b""}
+    with pytest.raises(RequestError, match="beyond numpy's bounds") as refused:
+        Request.from_wire(encode(_columns(loads=loads)))
+    assert refused.value.code == "bad_request"

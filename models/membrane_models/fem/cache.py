@@ -74,8 +74,8 @@ def recorded_entries() -> Iterator[list[CacheUse]]:
     _RECORDERS.append(used)
     try:
         yield used
-    finally:
-        _RECORDERS.remove(used)
+    finally:  # by identity: two blocks' lists may be equal
+        del _RECORDERS[next(i for i, r in enumerate(_RECORDERS) if r is used)]
 
 
 def _record(path: Path, built: bool) -> None:

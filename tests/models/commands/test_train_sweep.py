@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from membrane_cli.dispatcher import main
+from membrane_errors import UserError
 from membrane_models.executors import Job, RayExecutor, SerialExecutor
 
 ITERATIONS = "12"
@@ -31,6 +32,18 @@ def _square(x: int) -> int:
 def test_the_serial_executor_runs_jobs_in_order() -> None:
     jobs = [Job(f"j{k}", _square, (k,)) for k in range(5)]
     assert SerialExecutor().run(jobs, progress=False) == [0, 1, 4, 9, 16]
+
+
+@pytest.mark.slow
+def test_a_jobs_one_line_refusal_comes_back_from_ray_as_it_would_serially() -> None:
+    from membrane_server.cache_build import parse_vary  # a job's function Ray's workers import
+
+    jobs = [Job("fine", parse_vary, ("tissue.E=1",)), Job("bad", parse_vary, ("nope",))]
+    said = r"^--vary takes KEY=V1,V2,\.\.\. \(e\.g\. tissue\.thickness=0\.002,0\.003\), got 'nope'$"
+    with pytest.raises(UserError, match=said):
+        SerialExecutor().run(jobs, progress=False)
+    with pytest.raises(UserError, match=said):
+        RayExecutor(workers=1).run(jobs, progress=False)
 
 
 @pytest.mark.slow
