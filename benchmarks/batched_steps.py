@@ -12,6 +12,7 @@
 - ``peers unbatched``: ... against the same traffic on a second server with ``--max-batch 1``.
 
     .venv/bin/python benchmarks/batched_steps.py [--seconds 3] [--input load|probe]
+        [--frame-every N] [--counts 1,8,64,256]
     .venv/bin/python benchmarks/batched_steps.py --kernel
 
 ``--kernel`` times the free step alone in this process (CPU time per session, 64 sessions of
@@ -57,7 +58,7 @@ def _inputs(kind: str, index: int) -> dict[str, Any]:
 
 
 def _client_rate(
-    client: Client, sessions: list[Session], mode: str, seconds: float, kind: str
+    client: Client, sessions: list[Session], mode: str, seconds: float, kind: str, every: int = 10
 ) -> float:
     """Steps a second of one client stepping all its sessions every round: one ``step`` at a
     time (``single``), one ``steps`` request (``steps``) or one ``step_columns`` request of
@@ -66,7 +67,7 @@ def _client_rate(
     started = time.perf_counter()
     deadline = started + seconds
     while time.perf_counter() < deadline:
-        frame = rounds % 10 == 9
+        frame = rounds % every == every - 1
         if mode == "columns":
             rows = np.array([[*ld.at, ld.force, ld.radius] for i in range(len(sessions))
                              for ld in _inputs(kind, i)["loads"]])  # fmt: skip
@@ -82,7 +83,7 @@ def _client_rate(
     return steps / (time.perf_counter() - started)
 
 
-def _peers_rate(address: str, count: int, seconds: float, kind: str) -> float:
+def _peers_rate(address: str, count: int, seconds: float, kind: str, every: int = 10) -> float:
     """``count`` DEALER peers, each its own session, all stepping every round."""
     context: zmq.Context[zmq.Socket[bytes]] = zmq.Context.instance()
     sockets = []
@@ -102,7 +103,7 @@ def _peers_rate(address: str, count: int, seconds: float, kind: str) -> float:
     started = time.perf_counter()
     try:
         while time.perf_counter() < started + seconds:
-            frame = k % 10 == 9
+            frame = k % every == every - 1
             for index, socket in enumerate(sockets):
                 request = Request("step", k, session=f"peer-{count}-{index}", k=k, frame=frame,
                                   token=f"t{index}", **wire[index])  # fmt: skip
@@ -200,6 +201,8 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--input", choices=["load", "probe"], default="load")
     parser.add_argument("--kernel", action="store_true", help="the free step alone, in process")
+    parser.add_argument("--frame-every", type=int, default=10, help="frames every Nth round")
+    parser.add_argument("--counts", default=",".join(map(str, COUNTS)), help="session counts")
     args = parser.parse_args()
     if args.kernel:
         print(json.dumps(_kernel_figures(), indent=2))
@@ -207,18 +210,19 @@ def main() -> int:
     rows = []
     servers = (_server(), _server("--max-batch", "1"))
     with servers[0] as address, servers[1] as unbatched, Client(address, timeout=30.0) as client:
-        for count in COUNTS:
+        for count in [int(n) for n in args.counts.split(",")]:
             sessions = [client.session("membrane-live") for _ in range(count)]
-            single = _client_rate(client, sessions, "single", args.seconds, args.input)
-            batch = _client_rate(client, sessions, "steps", args.seconds, args.input)
+            every = args.frame_every
+            single = _client_rate(client, sessions, "single", args.seconds, args.input, every)
+            batch = _client_rate(client, sessions, "steps", args.seconds, args.input, every)
             columns = math.nan
             if args.input == "load":
-                columns = _client_rate(client, sessions, "columns", args.seconds, args.input)
+                columns = _client_rate(client, sessions, "columns", args.seconds, args.input, every)
             for session in sessions:
                 session.close()
-            peers = _peers_rate(address, count, args.seconds, args.input)
-            alone = _peers_rate(unbatched, count, args.seconds, args.input)
-            rows.append({"sessions": count, "input": args.input,
+            peers = _peers_rate(address, count, args.seconds, args.input, every)
+            alone = _peers_rate(unbatched, count, args.seconds, args.input, every)
+            rows.append({"sessions": count, "input": args.input, "frame_every": every,
                          "single_steps_per_s": round(single),
                          "steps_op_steps_per_s": round(batch),
                          "columns_steps_per_s": round(columns) if columns == columns else None,
