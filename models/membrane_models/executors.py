@@ -194,12 +194,13 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--executor",
         choices=EXECUTORS,
-        default="serial",
         help="where the jobs run: one after another here (serial, default) or as Ray tasks "
         "(ray: a local Ray unless --ray-address; needs membrane-tissue[cluster])",
     )
     parser.add_argument(
-        "--ray-address", help="an existing Ray cluster (e.g. ray://head:10001); implies ray"
+        "--ray-address",
+        help="an existing Ray cluster, joined from one of its nodes (e.g. auto, or head:6379; "
+        "a ray:// address needs Ray's client: pip install 'ray[client]'); implies ray",
     )
     parser.add_argument(
         "--workers", type=int, help="a local Ray's CPUs (default: this machine's cores)"
@@ -208,6 +209,8 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
 
 def executor_from_args(args: argparse.Namespace) -> Executor:
     """The executor a command's ``add_executor_arguments`` options name."""
+    if args.executor == "serial" and args.ray_address is not None:
+        raise UserError("--ray-address is for --executor ray")
     if args.executor == "ray" or args.ray_address is not None:
         return RayExecutor(args.ray_address, args.workers)
     if args.workers is not None:

@@ -28,6 +28,7 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
+from membrane_errors import UserError
 from membrane_models.fem.cache import CacheUse, recorded_entries
 from membrane_server.scene import SceneError, load_scene, scene_from_dict
 
@@ -76,7 +77,8 @@ def parse_vary(text: str) -> tuple[tuple[str, ...], list[Any]]:
         try:
             parsed.append(tomllib.loads(f"v = {value.strip()}")["v"])
         except tomllib.TOMLDecodeError:
-            raise SceneError(f"--vary {key}: {value.strip()!r} is not a TOML value") from None
+            reason = f"{value.strip()!r} is not a TOML value (a string takes quotes: \"clamped\")"
+            raise SceneError(f"--vary {key}: {reason}") from None
     return parts, parsed
 
 
@@ -89,6 +91,10 @@ def variants(scenes: Sequence[str], vary: Sequence[str]) -> list[Variant]:
             the scene refuses (the message names it).
     """
     axes = [parse_vary(text) for text in vary]
+    keys = [".".join(parts) for parts, _ in axes]
+    for key in keys:
+        if keys.count(key) > 1:
+            raise SceneError(f"--vary {key} is given twice: give its values once, comma-separated")
     built = []
     for name in scenes:
         scene = load_scene(name)
@@ -116,7 +122,10 @@ def build_scene_caches(variant: Variant, cache_root: str) -> SceneCaches:
     scene = scene_from_dict(variant.data, None if variant.source is None else Path(variant.source))
     started = time.perf_counter()
     with _cache_root(cache_root), threadpool_limits(limits=1), recorded_entries() as entries:
-        served = ServedScene.load(scene)
+        try:
+            served = ServedScene.load(scene)
+        except UserError as exc:  # say which variant (a build's own refusal, e.g. its size)
+            raise UserError(f"{variant.label}: {exc}") from None
     close = getattr(served.live, "close", None)  # a worker it may hold
     if callable(close):
         close()
@@ -157,7 +166,9 @@ def _set(data: dict[str, Any], parts: tuple[str, ...], value: Any, scene: str) -
     """Set a dotted key (a field the scene does not know is refused by its validation)."""
     table = data
     for part in parts[:-1]:
-        inner = table.setdefault(part, {})
+        inner = table.get(part)
+        if inner is None:
+            raise SceneError(f"--vary {'.'.join(parts)}: scene {scene} has no [{part}] table")
         if not isinstance(inner, dict):
             raise SceneError(f"--vary {'.'.join(parts)}: {part!r} of scene {scene} is not a table")
         table = inner

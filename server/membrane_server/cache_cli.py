@@ -51,8 +51,10 @@ def add_caches(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         "file); repeat for the product of several",
     )  # fmt: skip
     parser.add_argument(
-        "--cache-dir", type=Path, metavar="DIR",
-        help="the caches' root (default: $MEMBRANE_CACHE_DIR, else the user cache)",
+        "--cache-dir", type=Path, metavar="ROOT",
+        help="the caches' root, as MEMBRANE_CACHE_DIR (the tables go to ROOT/fem; a server "
+        "finds them with MEMBRANE_CACHE_DIR=ROOT; default: $MEMBRANE_CACHE_DIR, else the user "
+        "cache)",
     )  # fmt: skip
     add_executor_arguments(parser)
     parser.set_defaults(handler=_run_caches)
@@ -78,7 +80,8 @@ def _run_caches(args: argparse.Namespace) -> int:
     built = variants(args.scene, args.vary)
     _require_writable(root / "fem")
     jobs = [Job(v.label, build_scene_caches, (v, str(root))) for v in built]
-    print(f"membrane caches: {len(jobs)} scene(s) into {root / 'fem'}", flush=True)
+    count = f"{len(jobs)} variant(s) of {len(args.scene)} scene(s)"
+    print(f"membrane caches: {count} into {root / 'fem'}", flush=True)
     results = executor.run(jobs)
     for result in results:
         made = sum(use.built for use in result.entries)

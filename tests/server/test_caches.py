@@ -79,6 +79,8 @@ def test_variants_are_the_product_of_the_varied_values_and_leave_the_file_alone(
         ("tissue.stiffness=1e6", "stiffness"),
         ("tissue.youngs_modulus=-1e6", "youngs_modulus"),
         ("dt.x=1", "'dt' of scene tiny-disk is not a table"),
+        ("placement.size=2.0", "scene tiny-disk has no [placement] table"),
+        ("tissue.supports=clamped", 'a string takes quotes: "clamped"'),
     ],
 )
 def test_bad_variants_are_one_line_and_exit_2(
@@ -89,6 +91,15 @@ def test_bad_variants_are_one_line_and_exit_2(
     err = capsys.readouterr().err
     assert code == 2 and says in err and len(err.strip().splitlines()) == 1, err
     assert not cache.exists()  # refused before anything was built
+
+
+def test_a_key_varied_twice_is_refused(
+    tiny_scene: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    vary = ["--vary", "tissue.youngs_modulus=1e6", "--vary", "tissue.youngs_modulus=2e6"]
+    code = main(["caches", "--scene", str(tiny_scene), *vary, "--cache-dir", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 2 and "given twice" in err and len(err.strip().splitlines()) == 1
 
 
 def test_entries_a_job_left_out_of_sight_are_named(tmp_path: Path) -> None:

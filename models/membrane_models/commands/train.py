@@ -113,7 +113,7 @@ def _run_train(args: argparse.Namespace) -> int:
         raise UsageError(f"--data is for {KOOPMAN_MODEL} only")
     if args.seeds is not None or args.sweep:
         return _run_sweep(args)
-    if args.executor != "serial" or args.ray_address is not None or args.workers is not None:
+    if args.executor is not None or args.ray_address is not None or args.workers is not None:
         raise UsageError(
             "--executor, --ray-address and --workers are for sweeps (--seeds, --sweep)"
         )

@@ -79,6 +79,7 @@ def test_a_sweep_on_a_local_ray_gives_the_serial_runs_losses_to_the_last_digit(
         (["--seeds", "0,1", "--resume"], "for a single run, not a sweep"),
         (["--executor", "ray"], "are for sweeps"),
         (["--seeds", "0", "--workers", "2"], "--workers is for --executor ray"),
+        (["--seeds", "0", "--executor", "serial", "--ray-address", "x"], "is for --executor ray"),
         (["--seeds", "0", "--executor", "ray", "--workers", "0"], "--workers must be >= 1"),
         (["--seeds", "0", "--sweep", "nope=1,2"], "nope"),
     ],
