@@ -28,8 +28,9 @@ def add_tradeoff(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]
             "grid with a real client, and record p50/p99 query latency and the relative L2 "
             "error against the exact solution. Writes a markdown table and a log-log Pareto "
             "plot. With --executor ray the cases' errors are measured in parallel first, each "
-            "case served by a server of its own in a Ray task; the timings stay serial. Exit "
-            "code 1 when no case could be measured."
+            "case served by a server of its own in a Ray task; the timings stay serial, so it "
+            "saves at most the exact solution's evaluation per case (on a 2-core machine it is "
+            "slower: docs/BENCHMARKS.md). Exit code 1 when no case could be measured."
         ),
     )
     # Required: a default path would overwrite whatever docs/ the current directory holds.
