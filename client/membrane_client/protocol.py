@@ -266,7 +266,7 @@ class Request:
             known = ", ".join(Op)
             raise RequestError(ErrorCode.UNKNOWN_OP, f"unknown op {preview(op)}; ops: {known}")
         session = message.get("session")
-        if session is not None and not (type(session) is str and len(session) <= _SESSION):
+        if session is not None and not _is_session_id(session):
             reason = f"'session' must be a string of at most {_SESSION} characters"
             raise RequestError(ErrorCode.BAD_REQUEST, reason)
         return cls(op, request_id, session)
@@ -278,7 +278,7 @@ class Request:
         if type(item) is not dict:
             raise RequestError(ErrorCode.BAD_REQUEST, f"a steps item is a map, got {preview(item)}")
         session = item.get("session")
-        if not (type(session) is str and len(session) <= _SESSION):
+        if not _is_session_id(session):
             reason = f"a steps item needs 'session', a string of at most {_SESSION} characters"
             raise RequestError(ErrorCode.BAD_REQUEST, reason)
         request = cls(Op.STEP, request_id, session)
@@ -377,7 +377,7 @@ class Request:
         if (
             type(sessions) is not list
             or not 1 <= len(sessions) <= MAX_BATCH_STEPS
-            or not all(type(s) is str and len(s) <= _SESSION for s in sessions)
+            or not all(_is_session_id(s) for s in sessions)
         ):
             reason = (
                 f"'sessions' must be a list of 1 to {MAX_BATCH_STEPS} session ids (strings of "
@@ -452,6 +452,11 @@ _LIVE_OPS = frozenset((Op.OPEN, Op.STEP, Op.READ, Op.RESET, Op.CLOSE))
 _SCENE_OPS = frozenset((Op.DESCRIBE, Op.QUERY, *_LIVE_OPS))
 _FRAME_OPS = frozenset((Op.QUERY, Op.STEP, Op.READ))  # their replies carry a frame: dtype
 _SESSION = MAX_SESSION_CHARS
+
+
+def _is_session_id(value: Any) -> bool:
+    """A session id: a string of at most MAX_SESSION_CHARS characters."""
+    return type(value) is str and len(value) <= _SESSION
 _INITIAL_SHAPES = frozenset(INITIAL_SHAPES)
 
 

@@ -16,11 +16,12 @@ a silent miss at serving time.
 
 from __future__ import annotations
 
+import copy
 import itertools
 import os
 import time
 import tomllib
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +30,7 @@ from typing import Any
 from threadpoolctl import threadpool_limits
 
 from membrane_errors import UserError
-from membrane_models.fem.cache import CacheUse, recorded_entries
+from membrane_models.fem.cache import CacheUse, cache_directory, recorded_entries
 from membrane_server.scene import SceneError, load_scene, scene_from_dict
 
 __all__ = [
@@ -50,7 +51,7 @@ class Variant:
     (relative mesh paths resolve against it) and what was varied, in words."""
 
     data: dict[str, Any]
-    source: str | None
+    source: str
     label: str
 
 
@@ -103,7 +104,7 @@ def variants(scenes: Sequence[str], vary: Sequence[str]) -> list[Variant]:
         base.setdefault("name", scene.name)
         source = str(scene.source)
         for values in itertools.product(*(axis[1] for axis in axes)):
-            data = _copy(base)
+            data = copy.deepcopy(base)
             words = [scene.name]
             for (parts, _), value in zip(axes, values, strict=True):
                 _set(data, parts, value, scene.name)
@@ -119,7 +120,7 @@ def build_scene_caches(variant: Variant, cache_root: str) -> SceneCaches:
     floating point does not depend on how many threads the process it ran in had."""
     from membrane_server.served import ServedScene
 
-    scene = scene_from_dict(variant.data, None if variant.source is None else Path(variant.source))
+    scene = scene_from_dict(variant.data, Path(variant.source))
     started = time.perf_counter()
     with _cache_root(cache_root), threadpool_limits(limits=1), recorded_entries() as entries:
         try:
@@ -135,7 +136,7 @@ def build_scene_caches(variant: Variant, cache_root: str) -> SceneCaches:
 
 def missing_entries(caches: Sequence[SceneCaches], cache_root: Path) -> list[str]:
     """The entries the jobs say they used that this process cannot see in ``cache_root``."""
-    folder = cache_root / "fem"
+    folder = cache_directory(cache_root)
     return sorted({use.name for build in caches for use in build.entries} - _names(folder))
 
 
@@ -156,10 +157,6 @@ def _cache_root(root: str) -> Iterator[None]:
             del os.environ[_CACHE_ROOT]
         else:
             os.environ[_CACHE_ROOT] = before
-
-
-def _copy(data: Mapping[str, Any]) -> dict[str, Any]:
-    return {k: _copy(v) if isinstance(v, Mapping) else v for k, v in data.items()}
 
 
 def _set(data: dict[str, Any], parts: tuple[str, ...], value: Any, scene: str) -> None:

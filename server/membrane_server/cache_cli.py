@@ -77,11 +77,12 @@ def _run_caches(args: argparse.Namespace) -> int:
     executor = executor_from_args(args)
     root = args.cache_dir if args.cache_dir is not None else cache_directory().parent
     root = root.resolve()
+    folder = cache_directory(root)
     built = variants(args.scene, args.vary)
-    _require_writable(root / "fem")
+    _require_writable(folder)
     jobs = [Job(v.label, build_scene_caches, (v, str(root))) for v in built]
     count = f"{len(jobs)} variant(s) of {len(args.scene)} scene(s)"
-    print(f"membrane caches: {count} into {root / 'fem'}", flush=True)
+    print(f"membrane caches: {count} into {folder}", flush=True)
     results = executor.run(jobs)
     for result in results:
         made = sum(use.built for use in result.entries)
@@ -92,6 +93,6 @@ def _run_caches(args: argparse.Namespace) -> int:
     if missing:
         raise UserError(
             f"{len(missing)} entries were written where this machine cannot see them (not in "
-            f"{root / 'fem'}): give --cache-dir a directory every node of the cluster shares"
+            f"{folder}): give --cache-dir a directory every node of the cluster shares"
         )
     return 0

@@ -270,17 +270,10 @@ class LiveOps:
         its inputs read: ready to step, or the stored reply of a re-send."""
         session = self._session(request, peer)
         k = request.k
-        if k != session.k:
-            last = session.last_step
-            if k == session.last_k and last is not None and last.resent_by(request):
-                self.table.counts["resent"] += 1
-                return last.reply_to(request)  # a re-send: never applied twice
-            self.table.counts["mismatches"] += 1
-            raise RequestError(
-                ErrorCode.STEP_MISMATCH,
-                f"the session has taken {session.k} steps: the next step is k = {session.k}, "
-                f"this one asked for k = {preview(k)}",
-            )
+        if k != session.k:  # a re-send, never applied twice, or the mismatch refusal
+            assert k is not None  # the protocol requires it of a step
+            last = self.table.resent_step(session, k, request.token, request.id)
+            return last.reply_to(request)
         engine = session.engine
         _require_inputs(
             engine,

@@ -5,7 +5,7 @@ A session is keyed by the envelope's ``session`` id and bound to the scene (and 
 opened on: a reload leaves it on that engine until it closes. With CurveZMQ it is also bound to
 its opener's public key: another key is told there is no such session. Without keys a session
 id is a bearer token (docs/PROTOCOL.md says so). A re-send is told by the ``Session`` object's
-own random ``token`` (``Sent.resent_by``), never by the request id alone. Each peer (a
+own random ``token`` (``same_sender``), never by the request id alone. Each peer (a
 connection without CurveZMQ, a key with it) holds at most ``max_per_peer`` sessions, within
 the global ``max_sessions``. The ops on them are ``live.LiveOps``'.
 """
@@ -96,8 +96,6 @@ class StoredStep(Protocol):
 
     def reply_to(self, request: Request) -> bytes: ...
 
-    def resent_by(self, request: Request) -> bool: ...
-
 
 @dataclass
 class LiveSession:
@@ -179,6 +177,26 @@ class SessionTable:
         session.last_used = self._clock()
         self._sessions.move_to_end(session_id)
         return session
+
+    def resent_step(
+        self, session: LiveSession, k: int, token: str | None, request_id: int
+    ) -> StoredStep:
+        """The stored step that a step asking for ``k`` (not the session's next) re-sends, or
+        the ``step_mismatch`` refusal; each counted (``resent``, ``mismatches``)."""
+        last = session.last_step
+        if (
+            k == session.last_k
+            and last is not None
+            and same_sender(last.token, last.request_id, token, request_id)
+        ):
+            self.counts["resent"] += 1
+            return last
+        self.counts["mismatches"] += 1
+        raise RequestError(
+            ErrorCode.STEP_MISMATCH,
+            f"the session has taken {session.k} steps: the next step is k = {session.k}, "
+            f"this one asked for k = {preview(k)}",
+        )
 
     def require(self, session_id: str, peer: str = "") -> LiveSession:
         """``get``, or the ``unknown_session`` refusal."""

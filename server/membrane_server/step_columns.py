@@ -33,12 +33,11 @@ from membrane_client.protocol import (
     encode,
     ok_reply,
     pack_array,
-    preview,
     unpack_array,
 )
 from membrane_models.live import LiveError, Load
 from membrane_models.live.interface import BatchedEngine
-from membrane_server.sessions import LiveSession, Sent, StoredStep, same_sender
+from membrane_server.sessions import LiveSession, Sent, StoredStep
 
 if TYPE_CHECKING:
     from membrane_server.served import ServedScene
@@ -52,7 +51,7 @@ class ColumnStep:
     """A step taken in a ``step_columns`` request, kept as its values (``StoredStep``).
 
     Attributes:
-        token, request_id: what tells a re-send (``sessions.same_sender``).
+        token, request_id: what tells a re-send (``SessionTable.resent_step``).
         k, t: the session's step count and time after it.
         frame: the frame as sent (in ``dtype``, lattice-shaped), or None when none was asked.
         session, revision: the session's id and its scene's revision.
@@ -66,9 +65,6 @@ class ColumnStep:
     dtype: str
     session: str
     revision: str
-
-    def resent_by(self, request: Request) -> bool:
-        return same_sender(self.token, self.request_id, request.token, request.id)
 
     def reply_to(self, request: Request) -> bytes:
         """The reply a lone ``step`` of these values would have had (under ``request``'s id)."""
@@ -166,8 +162,9 @@ def _take_all(
             session = table.require(session_id, peer)
             _require_on(session, served, index)
             k = columns.k[index]
-            if k != session.k:
-                stored = _resent(table, session, k, columns.tokens[index], request.id, index)
+            if k != session.k:  # a re-send (its stored values), or the mismatch refusal
+                last = table.resent_step(session, k, columns.tokens[index], request.id)
+                stored = _stored_values(last)
                 frame = None
                 if columns.frames[index]:  # the stored step's, or its end's (its state now)
                     frame = stored[2]
@@ -201,32 +198,6 @@ def _require_on(session: LiveSession, served: ServedScene, index: int) -> None:
 def _sent_frame(frame: np.ndarray, session: LiveSession, request: Request) -> np.ndarray:
     """A frame as sent: in the request's dtype, lattice-shaped."""
     return np.asarray(frame, dtype=np.dtype(request.dtype)).reshape(session.served.shape)
-
-
-def _resent(
-    table: SessionTable,
-    session: LiveSession,
-    k: int,
-    token: str | None,
-    request_id: int,
-    index: int,
-) -> tuple[int, float, np.ndarray | None]:
-    """A step the session has taken already: its stored values when this is its re-send, else
-    the ``step_mismatch`` refusal."""
-    last = session.last_step
-    if (
-        k == session.last_k
-        and last is not None
-        and same_sender(last.token, last.request_id, token, request_id)
-    ):
-        table.counts["resent"] += 1
-        return _stored_values(last)
-    table.counts["mismatches"] += 1
-    raise RequestError(
-        ErrorCode.STEP_MISMATCH,
-        f"session {index} has taken {session.k} steps: its next step is k = {session.k}, this "
-        f"one asked for k = {preview(k)}",
-    )
 
 
 def _stored_values(last: StoredStep) -> tuple[int, float, np.ndarray | None]:

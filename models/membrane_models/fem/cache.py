@@ -83,11 +83,13 @@ def _record(path: Path, built: bool) -> None:
         used.append(CacheUse(path.name, built))
 
 
-def cache_directory() -> Path:
-    """``$MEMBRANE_CACHE_DIR/fem``, else the user's cache directory's ``membrane/fem``."""
-    root = os.environ.get("MEMBRANE_CACHE_DIR")
-    base = Path(root) if root else Path(platformdirs.user_cache_dir("membrane"))
-    return base / "fem"
+def cache_directory(root: Path | None = None) -> Path:
+    """The tables' folder under the caches' ``root``: by default ``$MEMBRANE_CACHE_DIR/fem``,
+    else the user's cache directory's ``membrane/fem``."""
+    if root is None:
+        given = os.environ.get("MEMBRANE_CACHE_DIR")
+        root = Path(given) if given else Path(platformdirs.user_cache_dir("membrane"))
+    return root / "fem"
 
 
 def source_digest() -> str:
