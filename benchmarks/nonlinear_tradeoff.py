@@ -17,7 +17,8 @@ in their plane) and lattice (20 x 20):
 2. The cost of a step at 1 kHz, in-process: the reduced engine during a slow press of the
    sphere to 6 mm (3,000 steps, a tool per step, no frame) without and with the adapted
    vector (its worker started first, as a session's start does; the vector built during the
-   press and stepped onto once built), `skin-patch`'s linear engine under the same press,
+   press and stepped onto once built), the 20 modes on the numpy path alone (no compiled
+   step: ``fem.reduced_kernel``), `skin-patch`'s linear engine under the same press,
    and one Newmark + Newton step of the full plate (``fem.nonlinear_transient``).
 3. What an adapted vector costs to build: incrementally (``Adaptation.adapted``, off the
    step) against a whole ``reduce_plate`` with the same static point.
@@ -75,6 +76,11 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/nonlinear-tradeoff.json"))
     parser.add_argument("--costs-only", action="store_true", help="the step costs (part 2) only")
     parser.add_argument("--repeat", type=int, default=1, help="the cost table this many times")
+    parser.add_argument("--rate", type=float, default=0.0,
+                        help="the cost table's presses paced at this many steps a second "
+                             "(default: back to back)")  # fmt: skip
+    parser.add_argument("--spin", action="store_true",
+                        help="with --rate: wait polling the clock, not asleep")  # fmt: skip
     parser.add_argument(
         "--builds-beside",
         action="store_true",
@@ -95,7 +101,7 @@ def main() -> None:
         print(f"reduced plate, {count} modes: built in {builds[count]:.1f} s", flush=True)
     if args.costs_only:
         for _ in range(args.repeat):
-            cost_table(scene, tissue, plates)
+            cost_table(scene, tissue, plates, args.rate, args.spin)
         return
     if args.builds_beside:
         for _ in range(args.repeat):
@@ -171,36 +177,57 @@ def linear_press(system: fem.System, rows: list[ToolPoints]) -> list[float]:
 
 
 def cost_table(
-    scene: object, tissue: object, plates: dict[int, ReducedPlate]
+    scene: object,
+    tissue: object,
+    plates: dict[int, ReducedPlate],
+    rate: float = 0.0,
+    spin: bool = False,
 ) -> dict[str, dict[str, float]]:
-    """Step cost (us) of a slow sphere press, in-process, per engine."""
+    """Step cost (us) of a slow sphere press, in-process, per engine (``rate``: as
+    ``_press_cost``'s)."""
     costs = {}
     print("\n| engine | step p50 (us) | p99 (us) | max (us) |")
     print("| --- | --- | --- | --- |")
     for count, plate in plates.items():
         engine = NonlinearPlateEngine(tissue, (20, 20), 1e-3, modes=count, plate=plate,  # type: ignore[arg-type]
                                       adapted=False)  # fmt: skip
-        costs[f"reduced, {count} modes"] = _press_cost(engine)
+        pressed = functools.partial(_press_cost, rate=rate, spin=spin)
+        costs[f"reduced, {count} modes"] = pressed(engine)
         if count == DEFAULT_MODES:
+            engine = NonlinearPlateEngine(tissue, (20, 20), 1e-3, modes=count, plate=plate,  # type: ignore[arg-type]
+                                          adapted=False, compiled=False)  # fmt: skip
+            costs[f"reduced, {count} modes, numpy path"] = pressed(engine)
             engine = NonlinearPlateEngine(tissue, (20, 20), 1e-3, modes=count, plate=plate)  # type: ignore[arg-type]
-            costs[f"reduced, {count} modes + adapted"] = _press_cost(engine)
+            costs[f"reduced, {count} modes + adapted"] = pressed(engine)
             engine.close()
     linear = build_scene_engine(load_scene("skin-patch"), tissue_parts(load_scene("skin-patch"))[0])
-    costs["linear modal (skin-patch, 100 modes)"] = _press_cost(linear)
+    costs["linear modal (skin-patch, 100 modes)"] = _press_cost(linear, rate=rate, spin=spin)
     for name, figures in costs.items():
         print(f"| {name} | {figures['p50']:.0f} | {figures['p99']:.0f} | {figures['max']:.0f} |")
     return costs
 
 
-def _press_cost(engine: object, steps: int = 3000) -> dict[str, float]:
+def _press_cost(
+    engine: object, steps: int = 3000, rate: float = 0.0, spin: bool = False
+) -> dict[str, float]:
+    """The press's step costs; ``rate`` > 0: a step every 1 / rate s, as a haptic loop's, the
+    time between steps slept (``spin``: spent polling the clock, as ``membrane serve
+    --spin-us`` does), else back to back."""
     state = engine.start().state  # type: ignore[attr-defined]
     follower = getattr(engine, "follower", None)
     if follower is not None:
         follower.wait()  # the worker ready, as a session's start makes it before a press
     times = np.empty(steps)
     switched = -1
+    origin = time.perf_counter()
     for k in range(steps):
         tool = Tool("sphere", PLACES["centre"], DEPTHS[-1] * (k + 1) / steps, RADIUS)
+        if rate > 0.0:
+            due = origin + k / rate
+            if not spin:
+                time.sleep(max(0.0, due - time.perf_counter()))
+            while time.perf_counter() < due:
+                pass
         began = time.perf_counter()
         new = engine.step(state, tools=[tool], frame=False).state  # type: ignore[attr-defined]
         times[k] = time.perf_counter() - began

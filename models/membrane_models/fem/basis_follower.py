@@ -66,6 +66,7 @@ class BasisFollower:
         self._worker: ProcessPoolExecutor | None = None
         self._warming: Future[None] | None = None
         self._broken = False
+        self._last_fit: tuple[AdaptedPlate, list[tuple[float, ...]]] | None = None
 
     def places(self, centres: Sequence[tuple[float, ...]]) -> Places:
         """The tools' centres rounded to the grid, sorted, without repeats."""
@@ -77,10 +78,16 @@ class BasisFollower:
         """Whether ``basis`` (None: the modes alone) suits tools at ``centres`` (m)."""
         if not centres:
             return True
+        last = self._last_fit  # a held tool asks the same every step (one tuple: thread-safe)
+        if last is not None and basis is last[0] and list(centres) == last[1]:
+            return True
         if basis is None or len(basis.points) != len(self.places(centres)):
             return False
         reach = self.spacing * (1.0 + 1e-9)
-        return all(min(math.dist(c[:2], p) for p in basis.points) <= reach for c in centres)
+        if all(min(math.dist(c[:2], p) for p in basis.points) <= reach for c in centres):
+            self._last_fit = (basis, list(centres))
+            return True
+        return False
 
     def follow(
         self, basis: AdaptedPlate | None, centres: Sequence[tuple[float, ...]]

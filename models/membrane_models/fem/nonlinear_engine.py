@@ -24,7 +24,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -44,6 +44,7 @@ from membrane_models.fem.reduced_dynamics import (
     StepCoefficients,
     step_reduced,
 )
+from membrane_models.fem.reduced_kernel import compiled_chord
 from membrane_models.fem.reduced_plate import ReducedPlate
 from membrane_models.fem.tissue import Tissue
 from membrane_models.live.errors import InvalidEngineSettings, InvalidState, InvalidTool
@@ -133,6 +134,7 @@ class NonlinearPlateEngine:
         inplane: str = "held",
         plate: ReducedPlate | None = None,
         adapted: bool = True,
+        compiled: bool | None = None,
     ) -> None:
         if not isinstance(tissue.model, Plate):
             raise InvalidEngineSettings("the fem-nonlinear engine steps a plate, not a membrane")
@@ -154,6 +156,7 @@ class NonlinearPlateEngine:
         self._no_points = np.zeros(0, dtype=np.intp)
         self._no_points.setflags(write=False)
         self._last_tool: tuple[tuple[object, ...], ToolPoints] | None = None
+        self._chord = compiled_chord() if compiled is None or compiled else None
         self.follower = (
             BasisFollower(
                 functools.partial(
@@ -292,13 +295,14 @@ class NonlinearPlateEngine:
                     "moderate"
                 )
         points = self._points(checked)
-        same = np.array_equal(points.indices, state.points)
+        same = points.indices is state.points or np.array_equal(points.indices, state.points)
         start = state.forces > 0.0 if same and state.forces.size else None
         begun = self._basis_for(state, checked)
         try:
             solved = step_reduced(begun.plate, begun.coefficients, begun.q, begun.v,
                                   points.indices, points.surface, start=start,
-                                  matrix=begun.matrix, acceleration=begun.acceleration)  # fmt: skip
+                                  matrix=begun.matrix, acceleration=begun.acceleration,
+                                  chord=self._chord)  # fmt: skip
         except NotConverged:
             raise InvalidTool(
                 "this step's contact could not be solved: the tools moved too far in one step"
@@ -313,6 +317,12 @@ class NonlinearPlateEngine:
                                   begun.coefficients)  # fmt: skip
         readings = tool_readings(checked, points, solved.forces, solved.displacement)
         return StepResult(new, self.frame(new) if frame else None, (), None, (), readings)
+
+    @property
+    def compiled(self) -> bool:
+        """Whether steps that keep the last matrix and contact set are taken by the compiled
+        chord iteration (``reduced_kernel``; default: where numba is installed)."""
+        return self._chord is not None
 
     def frame(self, state: NonlinearPlateState) -> FloatArray:
         """Displacements on the lattice (x-major, flattened), m: the reduced plate plus the
@@ -392,7 +402,9 @@ class NonlinearPlateEngine:
                                   MAX_TOOL_POINTS)  # fmt: skip
             self._last_tool = (key, at_rest)
         at_rest = self._last_tool[1]
-        return replace(at_rest, surface=at_rest.surface - tool.depth)
+        # the same index array every step of a press: ``step`` knows the points by identity
+        return ToolPoints(at_rest.indices, at_rest.coordinates, at_rest.surface - tool.depth,
+                          at_rest.owner)  # fmt: skip
 
     def _project(self, shape: ArrayLike | None, what: str) -> tuple[FloatArray, float]:
         if shape is None:

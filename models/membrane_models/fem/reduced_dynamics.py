@@ -33,6 +33,7 @@ import numpy as np
 import scipy.linalg.lapack
 from numpy.typing import NDArray
 
+from membrane_models.fem.reduced_kernel import CONVERGED, NOT_FINITE, REFRESH_DUE, Chord
 from membrane_models.fem.reduced_plate import ReducedPlate
 from membrane_models.live.contact import solve_points
 
@@ -50,6 +51,9 @@ IntArray = NDArray[np.intp]
 MAX_ITERATIONS = 30
 _TOLERANCE = 1e-11  # relative change of q at which Newton stops
 _REFRESH = 3  # iterations between two factorisations of the Jacobian
+# the compiled iteration's: its chord iterates cost about 10 us against about 200 for a fresh
+# Jacobian (numpy), so it tries more of them before handing on for one
+_COMPILED_REFRESH = 8
 _CONTACT_TOLERANCE = 1e-12  # a gap that counts as closed, relative to the largest violation
 
 
@@ -106,12 +110,15 @@ def step_reduced(
     start: NDArray[np.bool_] | None = None,
     matrix: IterationMatrix | None = None,
     acceleration: FloatArray | None = None,
+    chord: Chord | None = None,
 ) -> Solved:
     """One step from (q0, v0) with the tools' lattice ``points`` kept at or below ``surface``
     (m), under an optional modal ``load`` held over the step (module docstring); ``start``:
     the points in contact at the last step, where the contact's search begins; ``matrix``:
     the last step's iteration matrix (``Solved.matrix``), Newton's first; ``acceleration``:
-    the last step's mean acceleration, for Newton's first guess q0 + dt v0 + dt^2 a / 2.
+    the last step's mean acceleration, for Newton's first guess q0 + dt v0 + dt^2 a / 2;
+    ``chord``: the compiled iteration (``reduced_kernel.compiled_chord``), which takes the step
+    where the last step's matrix and active set hold (else the numpy path below does).
 
     The residual is the module's second line times 2 / dt with v1 eliminated, written on
     s = q0 + q1 so that an iterate costs one product with G and one with H:
@@ -123,6 +130,13 @@ def step_reduced(
     Raises:
         NotConverged: Newton did not converge.
     """
+    resumed: tuple[FloatArray, int, bool] | None = None
+    if chord is not None and matrix is not None:
+        compiled = _compiled_step(chord, plate, coefficients, q0, v0, points, surface, load,
+                                  start, matrix, acceleration)  # fmt: skip
+        if isinstance(compiled, Solved):
+            return compiled
+        resumed = compiled
     dt = coefficients.dt
     r = plate.size
     first, second, index = plate.pairs
@@ -154,9 +168,15 @@ def step_reduced(
         tangent.flat[:: r + 1] += diagonal
         return np.asarray(tangent)
 
+    bound = _TOLERANCE * max(float(np.abs(guess).max()), 1e-300)
+    resume_at = 1
+    if resumed is not None:
+        guess, resume_at, refresh_now = resumed
+        matrix = None if refresh_now else matrix
     q, forces, displacement, iterations, used = _newton(
-        plate, residual, jacobian, guess, points, surface, active=start, matrix=matrix
-    )
+        plate, residual, jacobian, guess, points, surface, active=start, matrix=matrix,
+        first=resume_at, bound=bound,
+    )  # fmt: skip
     v = q - q0
     v *= 2.0 / dt
     v -= v0
@@ -227,6 +247,14 @@ class IterationMatrix:
                                points))  # fmt: skip
 
     @functools.cached_property
+    def contact_block(self) -> FloatArray:
+        """P, (J^-1 P')' and the flexibility side by side, (p, 2 r + p): the compiled step's
+        one array for the points (``reduced_kernel``)."""
+        block = np.hstack([self.shapes, self.response.T, self.flexibility])
+        block.setflags(write=False)
+        return block
+
+    @functools.cached_property
     def flexibility(self) -> FloatArray:
         """C - P J^-1 P' (m/N): the points' displacement per unit force beyond the basis's."""
         return np.asarray(self.compliance - self.shapes @ self.response)
@@ -275,6 +303,8 @@ def _newton(
     refresh: int = _REFRESH,
     active: NDArray[np.bool_] | None = None,
     matrix: IterationMatrix | None = None,
+    first: int = 1,
+    bound: float | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray, int, IterationMatrix]:
     """Newton with the points' contact solved at every iterate (module docstring): q, the
     points' forces, their displacements (with the residual's share), the iterations and the
@@ -282,17 +312,23 @@ def _newton(
 
     A chord iteration: the Jacobian (or the last step's ``matrix``) is factored once and
     refreshed at the current iterate every ``refresh`` iterations. The residual is always
-    exact, so the answer is Newton's; only the rate of convergence depends on the matrix."""
+    exact, so the answer is Newton's; only the rate of convergence depends on the matrix.
+
+    ``first``, ``bound``: where the compiled iteration stopped, its iterate given as ``q``
+    (``reduced_kernel``), the iteration to go on from and the start's scale's bound."""
     forces = np.zeros(points.size)
     # |step| <= tol max(scale, |q|): tried on the start's scale first, |q| only when that fails
-    bound = _TOLERANCE * max(float(np.abs(q).max()), 1e-300)
+    if bound is None:
+        bound = _TOLERANCE * max(float(np.abs(q).max()), 1e-300)
     chosen = None if active is None else active.nonzero()[0]
     current = None if matrix is None else matrix.at(plate, points)
     contact = None if current is None else _Contact(current, chosen)
-    for iteration in range(1, MAX_ITERATIONS + 1):
-        if current is None or contact is None or (iteration > 1 and (iteration - 1) % refresh == 0):
+    made_at = first  # the iteration the matrix in use was made at (or given at)
+    for iteration in range(first, MAX_ITERATIONS + 1):
+        if current is None or contact is None or iteration - made_at >= refresh:
             current = IterationMatrix.of(plate, jacobian(q), points)
             contact = _Contact(current, chosen if contact is None else contact.chosen)
+            made_at = iteration
         shift = _GETRS(current.lu, current.pivots, residual(q))[0]
         if points.size:
             free = current.shapes @ (q - shift)
@@ -312,6 +348,61 @@ def _newton(
                 displacement -= current.flexibility @ forces
             return q, forces, displacement, iteration, current
     raise NotConverged(f"Newton did not converge in {MAX_ITERATIONS} iterations")
+
+
+def _compiled_step(
+    chord: Chord,
+    plate: ReducedPlate,
+    coefficients: StepCoefficients,
+    q0: FloatArray,
+    v0: FloatArray,
+    points: IntArray,
+    surface: FloatArray,
+    load: FloatArray | None,
+    active: NDArray[np.bool_] | None,
+    matrix: IterationMatrix,
+    acceleration: FloatArray | None,
+) -> Solved | tuple[FloatArray, int, bool] | None:
+    """``step_reduced`` by the compiled chord iteration on ``matrix`` and the ``active`` set,
+    or None where the kernel cannot take the step (the tools' points changed, so the set is
+    searched for; the set is singular; a value not finite): the numpy path then takes it
+    from its start; or the iterate and iteration the numpy path goes on from, and whether on
+    a fresh Jacobian (the kernel's chord ran ``_COMPILED_REFRESH`` iterations) or on
+    ``matrix`` (the set changed)."""
+    if points.size and active is None:
+        return None
+    current = matrix.at(plate, points)
+    solution: FloatArray | None = _NO_SOLUTION
+    case = 0  # no points
+    if active is not None and points.size:
+        chosen = active.nonzero()[0]
+        case = 2 if not chosen.size else 1  # an empty set, or the set's solution
+        if chosen.size:
+            solution = current.solution(chosen)
+            if solution is None:
+                return None
+    r = plate.size
+    extra = np.zeros((2, r))
+    if acceleration is not None:
+        extra[0] = acceleration
+    if load is not None:
+        extra[1] = load
+    scalars = np.array([coefficients.dt, _TOLERANCE, _COMPILED_REFRESH, _CONTACT_TOLERANCE, case,
+                        acceleration is not None, load is not None], dtype=np.float64)  # fmt: skip
+    status, q, v, forces, displacement, iterations = chord(
+        q0, v0, extra, coefficients.lagging, plate.pairs_matrix, coefficients.pair_diagonal,
+        plate.pair_rows, plate.pairs[2], current.lu, current.pivots, current.contact_block,
+        solution, surface, scalars,
+    )  # fmt: skip
+    if status == NOT_FINITE:
+        return None
+    if status != CONVERGED:
+        return q, int(iterations), status == REFRESH_DUE
+    return Solved(q, v, forces, displacement, int(iterations), current)
+
+
+_NO_SOLUTION = np.zeros((0, 0))
+_NO_SOLUTION.setflags(write=False)
 
 
 def _factor(matrix: FloatArray) -> tuple[FloatArray, NDArray[np.int32]]:

@@ -99,6 +99,14 @@ class ReducedPlate:
         return first, second, index
 
     @functools.cached_property
+    def pair_rows(self) -> NDArray[np.intp]:
+        """The pairs' (J, K) as the rows of one (2, pairs) array (the compiled step's form)."""
+        first, second, _ = self.pairs
+        rows = np.ascontiguousarray(np.stack([first, second]))
+        rows.setflags(write=False)
+        return rows
+
+    @functools.cached_property
     def pairs_matrix(self) -> FloatArray:
         """G on the pairs, weighted so that H(Q)_jk = (pairs_matrix @ Q_pairs)[pair(j, k)] for a
         symmetric Q given on the pairs j <= k (an off-diagonal pair stands for two entries)."""

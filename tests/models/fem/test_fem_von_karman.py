@@ -1,6 +1,7 @@
 """The von Karman plate (fem.nonlinear): its tangent and residual are the energy's derivatives,
-it is the linear plate under small loads, and it follows the classical clamped circular plate's
-one-term solution where that solution holds."""
+it is the linear plate under small loads, it follows the classical clamped circular plate's
+one-term solution where that solution holds, Hencky's membrane at large loads and Levy's
+clamped square."""
 
 from __future__ import annotations
 
@@ -101,6 +102,25 @@ def test_the_clamped_disk_tends_to_henckys_membrane_under_a_large_load() -> None
     # measured 0.9931 at 2e4 on this mesh (0.9941-0.9943 on finer ones)
     assert 0.99 < ratios[1] < 1.0
     assert ratios[0] < ratios[1]  # the approach: bending's share falls as the load grows
+
+
+@pytest.mark.slow
+def test_the_clamped_square_with_sliding_edges_follows_levys_table() -> None:
+    # Levy (1942, NACA Report 740, Table 5): the clamped square under uniform pressure, each
+    # edge's normal in-plane displacement held and the tangential one free ("sliding"),
+    # nu = 0.316; w0 / h depends on q a^4 / (E h^4) and nu alone. Measured on this mesh
+    # (a / 8; a / 16 within 0.05 %): -0.30 %, -0.84 %, -2.05 % (benchmarks/levy.py, all nine)
+    a, h = 1.0, 0.01
+    plate = fem.Plate(youngs_modulus=1.0e6, poisson=0.316, thickness=h, density=1000.0)
+    system = fem.assemble(fem.rectangle(a, a, a / 8), plate, "clamped")
+    for load_number, levy, tolerance in ((17.79, 0.237, 0.005), (95.0, 0.912, 0.01),
+                                         (402.0, 1.902, 0.025)):  # fmt: skip
+        q = load_number * plate.youngs_modulus * h**4 / a**4
+        state = solve_nonlinear(system, fem.pressure_load(system, q), "sliding")
+        w0 = abs(fem.sample(system, state.w, [(a / 2, a / 2)])[0]) / h
+        assert w0 == pytest.approx(levy, rel=tolerance)
+        flexural = plate.youngs_modulus * h**3 / (12 * (1 - 0.316**2))
+        assert w0 < 0.00126 * q * a**4 / flexural / h  # stiffer than the linear plate
 
 
 @pytest.mark.slow
