@@ -457,6 +457,8 @@ _SESSION = MAX_SESSION_CHARS
 def _is_session_id(value: Any) -> bool:
     """A session id: a string of at most MAX_SESSION_CHARS characters."""
     return type(value) is str and len(value) <= _SESSION
+
+
 _INITIAL_SHAPES = frozenset(INITIAL_SHAPES)
 
 

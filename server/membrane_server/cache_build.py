@@ -78,7 +78,7 @@ def parse_vary(text: str) -> tuple[tuple[str, ...], list[Any]]:
         try:
             parsed.append(tomllib.loads(f"v = {value.strip()}")["v"])
         except tomllib.TOMLDecodeError:
-            reason = f"{value.strip()!r} is not a TOML value (a string takes quotes: \"clamped\")"
+            reason = f'{value.strip()!r} is not a TOML value (a string takes quotes: "clamped")'
             raise SceneError(f"--vary {key}: {reason}") from None
     return parts, parsed
 
