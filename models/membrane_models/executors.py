@@ -49,12 +49,19 @@ class Job(Generic[R]):
     args: tuple[Any, ...] = ()
 
 
+# what a finished job's progress line says of its result (``Executor.run``'s ``report``)
+Report = Callable[[Any], str]
+
+
 class Executor(Protocol):
-    """Runs jobs and returns their results in the jobs' order."""
+    """Runs jobs and returns their results in the jobs' order; with ``progress``, a line as
+    each starts (serial) or ends, with ``report(result)`` once it has ended where given."""
 
     name: str
 
-    def run(self, jobs: Sequence[Job[R]], progress: bool = True) -> list[R]: ...
+    def run(
+        self, jobs: Sequence[Job[R]], progress: bool = True, report: Report | None = None
+    ) -> list[R]: ...
 
 
 class SerialExecutor:
@@ -62,12 +69,16 @@ class SerialExecutor:
 
     name = "serial"
 
-    def run(self, jobs: Sequence[Job[R]], progress: bool = True) -> list[R]:
+    def run(
+        self, jobs: Sequence[Job[R]], progress: bool = True, report: Report | None = None
+    ) -> list[R]:
         results = []
         for index, job in enumerate(jobs):
             if progress:
                 print(f"[{index + 1}/{len(jobs)}] {job.name} ...", flush=True)
             results.append(job.fn(*job.args))
+            if progress and report is not None:
+                print(f"[{index + 1}/{len(jobs)}] {job.name}: {report(results[-1])}", flush=True)
         return results
 
 
@@ -82,7 +93,9 @@ class RayExecutor:
             raise UserError(f"--workers must be >= 1, got {workers}")
         self.address, self.workers = address, workers
 
-    def run(self, jobs: Sequence[Job[R]], progress: bool = True) -> list[R]:
+    def run(
+        self, jobs: Sequence[Job[R]], progress: bool = True, report: Report | None = None
+    ) -> list[R]:
         ray = _import_ray(local=self.address is None)
         started = time.perf_counter()
         owned = not ray.is_initialized()
@@ -97,7 +110,7 @@ class RayExecutor:
             task = ray.remote(num_cpus=1, max_retries=0)(_call)
             refs = [task.remote(job.fn, job.args) for job in jobs]
             try:
-                _wait_all(ray, refs, jobs, progress)
+                _wait_all(ray, refs, jobs, progress, report)
                 return list(ray.get(refs))
             except ray.exceptions.RayTaskError as exc:
                 if isinstance(exc.cause, UserError):  # a job's one-line refusal, as serially
@@ -177,8 +190,10 @@ def _start(ray: Any, address: str | None, workers: int | None) -> None:
         raise UserError(f"could not start or join {where}: {exc}") from None
 
 
-def _wait_all(ray: Any, refs: list[Any], jobs: Sequence[Job[Any]], progress: bool) -> None:
-    """Wait for every task, saying each one's end as it comes."""
+def _wait_all(
+    ray: Any, refs: list[Any], jobs: Sequence[Job[Any]], progress: bool, report: Report | None
+) -> None:
+    """Wait for every task, saying each one's end (and ``report`` of its result) as it comes."""
     names = {ref: job.name for ref, job in zip(refs, jobs, strict=True)}
     pending, done = list(refs), 0
     while pending:
@@ -186,7 +201,8 @@ def _wait_all(ray: Any, refs: list[Any], jobs: Sequence[Job[Any]], progress: boo
         done += len(finished)
         if progress:
             for ref in finished:
-                print(f"[{done}/{len(refs)}] {names[ref]} done", flush=True)
+                said = "done" if report is None else report(ray.get(ref))
+                print(f"[{done}/{len(refs)}] {names[ref]}: {said}", flush=True)
 
 
 def add_executor_arguments(parser: argparse.ArgumentParser) -> None:

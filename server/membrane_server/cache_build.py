@@ -67,20 +67,46 @@ class SceneCaches:
 
 def parse_vary(text: str) -> tuple[tuple[str, ...], list[Any]]:
     """``tissue.youngs_modulus=1e6,2e6`` as (the dotted key's parts, its values as TOML reads
-    them). Raises SceneError on anything else."""
+    them): the values are read as the items of one TOML array, so that a value may be a list
+    or a quoted string with commas of its own (``tissue.radii=[0.0,0.005],[0.0,0.003]``).
+    Raises SceneError on anything else."""
     key, sep, values = text.partition("=")
     parts = tuple(part.strip() for part in key.split("."))
     if not sep or not all(parts) or not values.strip():
         example = "tissue.thickness=0.002,0.003"
         raise SceneError(f"--vary takes KEY=V1,V2,... (e.g. {example}), got {text!r}")
-    parsed = []
-    for value in values.split(","):
-        try:
-            parsed.append(tomllib.loads(f"v = {value.strip()}")["v"])
-        except tomllib.TOMLDecodeError:
-            reason = f'{value.strip()!r} is not a TOML value (a string takes quotes: "clamped")'
-            raise SceneError(f"--vary {key}: {reason}") from None
+    try:
+        parsed: list[Any] = tomllib.loads(f"v = [{values}]")["v"]
+    except tomllib.TOMLDecodeError:
+        raise SceneError(f"--vary {key}: {_first_unreadable(values)}") from None
     return parts, parsed
+
+
+def _first_unreadable(values: str) -> str:
+    """Why ``values`` is not a list of TOML values, naming the first item that is not one
+    (items split at the commas outside brackets and quotes)."""
+    items, depth, quote, start = [], 0, "", 0
+    for index, char in enumerate(values):
+        if quote:
+            quote = "" if char == quote else quote
+        elif char in "\"'":
+            quote = char
+        elif char in "[{":
+            depth += 1
+        elif char in "]}":
+            depth -= 1
+        elif char == "," and depth == 0:
+            items.append(values[start:index])
+            start = index + 1
+    items.append(values[start:])
+    for item in items:
+        if not item.strip():
+            return f"an empty value between commas in {values!r}"
+        try:
+            tomllib.loads(f"v = {item.strip()}")
+        except tomllib.TOMLDecodeError:
+            return f'{item.strip()!r} is not a TOML value (a string takes quotes: "clamped")'
+    return f"{values!r} is not a comma-separated list of TOML values"
 
 
 def variants(scenes: Sequence[str], vary: Sequence[str]) -> list[Variant]:

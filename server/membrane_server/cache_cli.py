@@ -10,9 +10,13 @@ from __future__ import annotations
 import argparse
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from membrane_errors import UserError
 from membrane_models.executors import Job, add_executor_arguments, executor_from_args
+
+if TYPE_CHECKING:
+    from membrane_server.cache_build import SceneCaches
 
 __all__ = ["add_caches"]
 
@@ -48,7 +52,8 @@ def add_caches(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     parser.add_argument(
         "--vary", action="append", default=[], metavar="KEY=V1,V2,...",
         help="a scene field's values, e.g. tissue.youngs_modulus=1e6,2e6 (SI, as in the scene "
-        "file); repeat for the product of several",
+        "file; TOML values: a list in brackets, a string in quotes); repeat for the product "
+        "of several",
     )  # fmt: skip
     parser.add_argument(
         "--cache-dir", type=Path, metavar="ROOT",
@@ -70,6 +75,13 @@ def _require_writable(folder: Path) -> None:
         raise UserError(f"--cache-dir: cannot write in {folder}: {exc.strerror or exc}") from None
 
 
+def _built(result: SceneCaches) -> str:
+    """A variant's build in a progress line."""
+    made = sum(use.built for use in result.entries)
+    what = result.tissue or "no tissue: nothing to cache"
+    return f"{what}; {made} built, {len(result.entries) - made} found ({result.seconds:.1f} s)"
+
+
 def _run_caches(args: argparse.Namespace) -> int:
     from membrane_models.fem.cache import cache_directory
     from membrane_server.cache_build import build_scene_caches, missing_entries, variants
@@ -83,12 +95,7 @@ def _run_caches(args: argparse.Namespace) -> int:
     jobs = [Job(v.label, build_scene_caches, (v, str(root))) for v in built]
     count = f"{len(jobs)} variant(s) of {len(args.scene)} scene(s)"
     print(f"membrane caches: {count} into {folder}", flush=True)
-    results = executor.run(jobs)
-    for result in results:
-        made = sum(use.built for use in result.entries)
-        what = result.tissue or "no tissue: nothing to cache"
-        print(f"{result.label}: {what}; {made} built, {len(result.entries) - made} found "
-              f"({result.seconds:.1f} s)")  # fmt: skip
+    results = executor.run(jobs, report=_built)
     missing = missing_entries(results, root)
     if missing:
         raise UserError(

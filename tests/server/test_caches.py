@@ -11,7 +11,7 @@ import pytest
 
 from membrane_cli.dispatcher import main
 from membrane_models.fem.cache import CacheUse
-from membrane_server.cache_build import SceneCaches, missing_entries, variants
+from membrane_server.cache_build import SceneCaches, missing_entries, parse_vary, variants
 
 # The shipped disk, made small: a 20 mm disk, coarse, 8 modes on a 5 x 5 lattice (a second).
 _TINY = """\
@@ -81,6 +81,8 @@ def test_variants_are_the_product_of_the_varied_values_and_leave_the_file_alone(
         ("dt.x=1", "'dt' of scene tiny-disk is not a table"),
         ("placement.size=2.0", "scene tiny-disk has no [placement] table"),
         ("tissue.supports=clamped", 'a string takes quotes: "clamped"'),
+        ("tissue.radii=[0.0,0.005],[0.0", "'[0.0' is not a TOML value"),
+        ("tissue.thickness=0.002,,0.003", "an empty value between commas"),
     ],
 )
 def test_bad_variants_are_one_line_and_exit_2(
@@ -91,6 +93,12 @@ def test_bad_variants_are_one_line_and_exit_2(
     err = capsys.readouterr().err
     assert code == 2 and says in err and len(err.strip().splitlines()) == 1, err
     assert not cache.exists()  # refused before anything was built
+
+
+def test_a_varied_value_may_be_a_list_or_a_string_with_commas() -> None:
+    parts, values = parse_vary('tissue.radii=[0.0, 0.005],[0.0,0.003], "a, b"')
+    assert parts == ("tissue", "radii")
+    assert values == [[0.0, 0.005], [0.0, 0.003], "a, b"]
 
 
 def test_a_key_varied_twice_is_refused(
@@ -119,7 +127,9 @@ def test_variants_built_on_a_local_ray_are_the_serial_builds_bit_for_bit(
     assert out.count("1 built, 0 found") == 2, out
     ray = ["--cache-dir", str(tmp_path / "ray"), "--executor", "ray", "--workers", "2"]
     assert main([*argv, *ray]) == 0
-    assert "ray: 2 jobs on a local Ray" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "ray: 2 jobs on a local Ray" in out
+    assert out.count("built, 0 found") == 2 and "[2/2] tiny-disk" in out, out  # as each ends
     serial, on_ray = _entries(tmp_path / "serial" / "fem"), _entries(tmp_path / "ray" / "fem")
     assert len(serial) == 2 and serial.keys() == on_ray.keys()
     for name, arrays in serial.items():
