@@ -194,37 +194,65 @@ def modal_energy(
     return np.asarray(string.energy(q, p))
 
 
-def onnx_rollout(manifest: KoopmanManifest) -> Rollout:
-    """The Koopman graphs as a rollout: encode once, step, decode at the steps asked for."""
-    encoder = onnx_session(manifest.verify("encoder"))
-    stepper = onnx_session(manifest.verify("step"))
-    decoder = onnx_session(manifest.verify("decoder"))
+class _Graphs:
+    """The three graphs, stepping a latent with an optional re-encoding every ``reencode``
+    steps (decode, encode again: Fathi et al., ICLR 2024), which puts the latent back on the
+    encoder's image of the states it decodes to."""
+
+    def __init__(self, manifest: KoopmanManifest, reencode: int | None = None) -> None:
+        if reencode is not None and reencode < 1:
+            raise UserError(f"re-encoding takes a period of at least 1 step, not {reencode}")
+        self.encoder = onnx_session(manifest.verify("encoder"))
+        self.stepper = onnx_session(manifest.verify("step"))
+        self.decoder = onnx_session(manifest.verify("decoder"))
+        self.reencode = reencode
+
+    def encode(self, states: FloatArray) -> Any:
+        return self.encoder.run(None, {"state": states.astype(np.float32)})[0]
+
+    def decode(self, z: Any) -> FloatArray:
+        return np.asarray(self.decoder.run(None, {"z": z})[0], dtype=np.float64)
+
+    def step(self, z: Any, k: int) -> Any:
+        """The latent after step ``k`` (counted from 1) from ``z`` after step k - 1."""
+        z = self.stepper.run(None, {"z": z})[0]
+        if self.reencode is not None and k % self.reencode == 0:
+            z = self.encoder.run(None, {"state": self.decoder.run(None, {"z": z})[0]})[0]
+        return z
+
+
+def onnx_rollout(manifest: KoopmanManifest, reencode: int | None = None) -> Rollout:
+    """The Koopman graphs as a rollout: encode once, step, decode at the steps asked for
+    (``reencode``: decode and encode again every that many steps)."""
+    graphs = _Graphs(manifest, reencode)
     points = manifest.points
 
     def rollout(initial: FloatArray, steps: Sequence[int]) -> dict[int, FloatArray]:
-        z = encoder.run(None, {"state": initial.astype(np.float32)})[0]
+        z = graphs.encode(initial)
         out: dict[int, FloatArray] = {}
         done = 0
         for target in sorted(steps):
-            for _ in range(target - done):
-                z = stepper.run(None, {"z": z})[0]
+            for k in range(done + 1, target + 1):
+                z = graphs.step(z, k)
             done = target
-            state = decoder.run(None, {"z": z})[0].astype(np.float64)
-            out[target] = state[:, :points]
+            out[target] = graphs.decode(z)[:, :points]
         return out
 
     return rollout
 
 
 def long_horizon(
-    manifest: KoopmanManifest, test: TestSplit, steps: int, families: Sequence[str] = ("sine",)
+    manifest: KoopmanManifest,
+    test: TestSplit,
+    steps: int,
+    families: Sequence[str] = ("sine",),
+    reencode: int | None = None,
 ) -> dict[str, Any]:
     """Decoded energy over ``steps`` steps (every trajectory) and the error at the end (those of
-    ``families``, whose Galerkin references are cheap to run that far)."""
-    encoder = onnx_session(manifest.verify("encoder"))
-    stepper = onnx_session(manifest.verify("step"))
-    decoder = onnx_session(manifest.verify("decoder"))
-    z = encoder.run(None, {"state": test.states[:, 0].astype(np.float32)})[0]
+    ``families``, whose Galerkin references are cheap to run that far); ``reencode``: as
+    ``onnx_rollout``'s."""
+    graphs = _Graphs(manifest, reencode)
+    z = graphs.encode(test.states[:, 0])
     low = np.full(len(test.families), np.inf)
     high = np.full(len(test.families), -np.inf)
     # What a state of the model's size can hold: the energy of the initial state's first
@@ -234,17 +262,16 @@ def long_horizon(
     low_kept, high_kept = low.copy(), high.copy()
     every = max(steps // 100, 1)
     for k in range(1, steps + 1):
-        z = stepper.run(None, {"z": z})[0]
+        z = graphs.step(z, k)
         if k % every == 0 or k == steps:
-            state = decoder.run(None, {"z": z})[0].astype(np.float64)
-            energy = modal_energy(state, test.string)
+            energy = modal_energy(graphs.decode(z), test.string)
             low, high = (
                 np.minimum(low, energy / test.energy),
                 np.maximum(high, energy / test.energy),
             )
             low_kept = np.minimum(low_kept, energy / kept)
             high_kept = np.maximum(high_kept, energy / kept)
-    final = decoder.run(None, {"z": z})[0].astype(np.float64)[:, : test.points]
+    final = graphs.decode(z)[:, : test.points]
     chosen = [i for i, f in enumerate(test.families) if f in families]
     x = np.arange(1, test.points + 1) / (test.points + 1)
     errors = []
@@ -269,6 +296,7 @@ def long_horizon(
 
     return {
         "steps": steps,
+        **({} if reencode is None else {"reencode": reencode}),
         "energy_ratio_min": float(low.min()),
         "energy_ratio_max": float(high.max()),
         "energy_ratio_by_family": by_family(low, high),

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 import torch
 
+from membrane_errors import UserError
 from membrane_models.artifacts.evaluate import onnx_session
-from membrane_models.artifacts.koopman_evaluate import BANDS, TestSplit
+from membrane_models.artifacts.koopman_evaluate import BANDS, TestSplit, onnx_rollout
 from membrane_models.artifacts.koopman_manifest import find_koopman_model
 from membrane_models.data.koopman import DatasetSpec, write_datasets
 from membrane_models.learned.koopman_export import PARITY_TOLERANCE, write_graphs
@@ -131,3 +132,22 @@ def test_the_shipped_model_keeps_its_promises() -> None:
         stepped = stepper.run(None, {"z": stepped})[0]
     ratio = np.linalg.norm(stepped, axis=1) / np.linalg.norm(z, axis=1)
     assert np.all(ratio <= 1.0 + 1e-4)
+
+
+def test_re_encoding_decodes_and_encodes_again_every_n_steps(tiny_data: Path) -> None:
+    manifest = find_koopman_model("koopman-string")
+    assert manifest is not None
+    initial = TestSplit.read(tiny_data / "test.npz").states[:, 0]
+    encoder, stepper, decoder = (onnx_session(manifest.verify(role))
+                                 for role in ("encoder", "step", "decoder"))  # fmt: skip
+    z = encoder.run(None, {"state": initial.astype(np.float32)})[0]
+    for k in range(1, 5):
+        z = stepper.run(None, {"z": z})[0]
+        if k % 2 == 0:  # every 2 steps: decode, encode again
+            z = encoder.run(None, {"state": decoder.run(None, {"z": z})[0]})[0]
+    expected = decoder.run(None, {"z": z})[0][:, : manifest.points]
+    assert np.array_equal(onnx_rollout(manifest, 2)(initial, [4])[4], expected)
+    plain = onnx_rollout(manifest)(initial, [4])[4]
+    assert not np.array_equal(plain, expected)  # re-encoding changes the latent
+    with pytest.raises(UserError, match="at least 1 step"):
+        onnx_rollout(manifest, 0)
