@@ -7,7 +7,7 @@ the echo baseline (`membrane_bench.echo`) gets requests of the same bytes on the
 type, with replies of the same length. Server and echo alternate in segments so that a changing
 background load weighs on both alike.
 
-    python benchmarks/koopman_step_latency.py --seconds 20 --segments 4
+    python benchmarks/koopman_step_latency.py --seconds 20 --segments 4 [--spin-us 1500]
 """
 
 from __future__ import annotations
@@ -57,6 +57,12 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0, help="per mode, server and echo")
     parser.add_argument("--segments", type=int, default=4)
     parser.add_argument("--rate", type=float, default=1000.0)
+    parser.add_argument(
+        "--spin-us",
+        type=float,
+        default=0.0,
+        help="the server's `membrane serve --spin-us` (0: it blocks between requests)",
+    )
     args = parser.parse_args()
     address = f"tcp://127.0.0.1:{_free_port()}"
     server = subprocess.Popen(
@@ -69,6 +75,8 @@ def main() -> None:
             "rope-koopman",
             "--bind",
             address,
+            "--spin-us",
+            f"{args.spin_us:g}",
         ],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
