@@ -8,10 +8,13 @@ is within ``spacing`` of one of the basis's points and there are as many points 
 no tool any basis fits (nothing to adapt to). When it does not fit, the basis of the tools'
 rounded centres is stepped on if it is built, else its build is started in a worker process
 (one at a time: the newest wish is built when the last build ends) and the step goes on with
-the state's basis meanwhile. Stepping never waits for a build: a build costs about 0.3 s on
-the skin patch, its first one a few seconds more (the worker's start, the system and the
-condensation). A process, not a thread: a build holds the interpreter's lock between numpy's
-calls, and the steps' tail grew longer beside a thread than beside a process (docs/NONLINEAR.md,
+the state's basis meanwhile. Stepping never waits for a build (a build costs about 0.3 s on
+the skin patch, its first one a few seconds more: the worker's start, the system and the
+condensation), unless the follower is made to ``wait``: then the step that needs a place waits
+for its build, and which basis a step is taken on depends on the tools alone, not on how long
+the builds took (reproducible runs, offline simulators; never a haptic loop). A process, not
+a thread: a build holds the interpreter's lock between numpy's calls, and the steps' tail grew
+longer beside a thread than beside a process (docs/NONLINEAR.md,
 ``benchmarks/nonlinear_tradeoff.py --builds-beside``).
 
 Units: SI (m).
@@ -46,18 +49,22 @@ class BasisFollower:
 
     ``adaptation`` makes the ``Adaptation`` (seconds: the system and its factorisations); it is
     called once, in the worker process, by the first build, so it must pickle (a module-level
-    function, or a ``functools.partial`` of one)."""
+    function, or a ``functools.partial`` of one). ``wait``: ``follow`` waits for the build of
+    the place it is asked for (module docstring)."""
 
     def __init__(
         self,
         adaptation: Callable[[], Adaptation],
         spacing: float,
         capacity: int = 8,
+        *,
+        wait: bool = False,
     ) -> None:
         if not (math.isfinite(spacing) and spacing > 0.0) or capacity < 1:
             raise ValueError("the spacing must be positive and the capacity at least 1")
         self.spacing = spacing
         self.capacity = capacity
+        self.waits = wait
         self._make = adaptation
         self._built: OrderedDict[Places, AdaptedPlate] = OrderedDict()
         self._refused: set[Places] = set()
@@ -93,19 +100,24 @@ class BasisFollower:
         self, basis: AdaptedPlate | None, centres: Sequence[tuple[float, ...]]
     ) -> AdaptedPlate | None:
         """The basis to step on for tools at ``centres``: ``basis`` while it fits or while the
-        one that would is not built yet (its build then started), else that one."""
+        one that would is not built yet (its build then started; with ``wait``, waited for),
+        else that one. A place the worker could not build leaves ``basis``."""
         if self.fits(basis, centres):
             return basis
         wanted = self.places(centres)
-        with self._lock:
-            self._collect()
-            built = self._built.get(wanted)
-            if built is not None:
-                self._built.move_to_end(wanted)
-                return built
-            if wanted not in self._refused and self._pending is None and not self._broken:
-                self._start(wanted)
-        return basis
+        while True:
+            with self._lock:
+                self._collect()
+                built = self._built.get(wanted)
+                if built is not None:
+                    self._built.move_to_end(wanted)
+                    return built
+                if wanted not in self._refused and self._pending is None and not self._broken:
+                    self._start(wanted)
+                pending = self._pending
+            if not self.waits or pending is None:  # not waiting, refused, or no worker
+                return basis
+            pending[1].exception()  # another place's build first, if one was under way
 
     def prepare(self) -> None:
         """Start the worker and make what builds need (seconds), so that the first place asked

@@ -64,6 +64,7 @@ from membrane_models.live.stepper import positive
 from membrane_models.live.tools import ToolPoints, tool_points, tool_readings
 
 __all__ = [
+    "ADAPTED_BUILDS",
     "ADAPT_SPACING",
     "DEFAULT_MODES",
     "NONLINEAR_OPTIONS",
@@ -85,11 +86,17 @@ _STATE_OVERHEAD = 2048
 # patch, docs/NONLINEAR.md).
 ADAPT_SPACING = 0.25e-3
 _ADAPTED_KEPT = 8  # adapted bases kept built (about 6 MB each at 20 modes on the skin patch)
+ADAPTED_BUILDS = ("beside", "wait")
 
 NONLINEAR_OPTIONS = {
     "modes": f"the plate's lowest modes reduced to (default {DEFAULT_MODES}, at most {_MAX_MODES})",
     "inplane": 'the edges\' in-plane condition: "held" (default), "sliding" or "free"',
     "adapted": "add each tool's static response at its centre to the basis (default true)",
+    "adapted_build": (
+        'how a step meets a tool vector not built yet: "beside" (default: on the basis it has, '
+        'the vector built in a worker meanwhile) or "wait" (for its build: forces that depend on '
+        "the inputs alone)"
+    ),
 }
 
 
@@ -134,10 +141,15 @@ class NonlinearPlateEngine:
         inplane: str = "held",
         plate: ReducedPlate | None = None,
         adapted: bool = True,
+        adapted_build: str = "beside",
         compiled: bool | None = None,
     ) -> None:
         if not isinstance(tissue.model, Plate):
             raise InvalidEngineSettings("the fem-nonlinear engine steps a plate, not a membrane")
+        if adapted_build not in ADAPTED_BUILDS:
+            raise InvalidEngineSettings(
+                f"[live] adapted_build must be one of {', '.join(ADAPTED_BUILDS)}"
+            )
         self.tissue = tissue
         self._dt = positive(dt, "dt")
         self.inplane = inplane
@@ -164,6 +176,7 @@ class NonlinearPlateEngine:
                 ),
                 ADAPT_SPACING,
                 _ADAPTED_KEPT,
+                wait=adapted_build == "wait",
             )
             if adapted
             else None
@@ -386,6 +399,7 @@ class NonlinearPlateEngine:
             "vectors": "each tool's static response to a unit force at its centre",
             "spacing": ADAPT_SPACING,
             "kept": self.follower.capacity,
+            "build": "wait" if self.follower.waits else "beside",
         }
 
     def _points(self, tools: Sequence[Tool]) -> ToolPoints:
@@ -481,5 +495,7 @@ def build_nonlinear_engine(
     adapted = options.get("adapted", True)
     if not isinstance(adapted, bool):
         raise InvalidEngineSettings("[live] adapted must be true or false")
+    build = options.get("adapted_build", "beside")  # the engine checks it
     return NonlinearPlateEngine(problem, (int(lattice[0]), int(lattice[1])), dt, modes=modes,
-                                inplane=str(inplane), adapted=adapted)  # fmt: skip
+                                inplane=str(inplane), adapted=adapted,
+                                adapted_build=str(build))  # fmt: skip

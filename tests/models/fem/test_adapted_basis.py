@@ -19,6 +19,7 @@ from membrane_models.fem.nonlinear_press import press_nonlinear
 from membrane_models.fem.reduced_dynamics import press_reduced
 from membrane_models.fem.reduced_plate import ReducedPlate, reduce_plate
 from membrane_models.fem.tissue import Tissue
+from membrane_models.live.errors import InvalidEngineSettings
 from membrane_models.live.interface import Tool
 from membrane_models.live.tools import ToolPoints, tool_points
 
@@ -185,6 +186,57 @@ def test_the_engine_steps_onto_the_tools_vector_once_it_is_built(
         engine.close()
 
 
+def _press_forces(engine: NonlinearPlateEngine, steps: int = 30) -> tuple[list[float], bool]:
+    """A sphere pressed at the centre from rest: the force each step, and whether the first
+    step was taken on the tool's vector."""
+    state = engine.start().state
+    forces, first_adapted = [], False
+    for k in range(1, steps + 1):
+        tool = Tool("sphere", (0.025, 0.025), 0.003 * k / steps, 0.005)
+        result = engine.step(state, tools=[tool], frame=False)
+        state = result.state
+        first_adapted = first_adapted or (k == 1 and state.adapted is not None)
+        forces.append(result.tools[0].force)
+    return forces, first_adapted
+
+
+@pytest.mark.slow
+def test_a_press_waiting_for_its_vector_is_the_same_whatever_the_build_took(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # with adapted_build "wait" the first press of a fresh engine (its vector built while it
+    # waits) and a later press (the vector long built) are the same to the bit; beside, the
+    # first press goes on the modes alone while its vector is built, and they differ
+    monkeypatch.setenv("MEMBRANE_CACHE_DIR", str(tmp_path))
+    tissue = Tissue("skin patch", fem.rectangle(0.05, 0.05, 0.00625), SKIN, "clamped",
+                    Damping(), 20, (0.005,))  # fmt: skip
+    waiting = NonlinearPlateEngine(tissue, (20, 20), 1e-3, adapted_build="wait")
+    beside = NonlinearPlateEngine(tissue, (20, 20), 1e-3)
+    try:
+        said, default = waiting.describe()["adapted"], beside.describe()["adapted"]
+        assert isinstance(said, dict) and isinstance(default, dict)
+        assert said == {**default, "build": "wait"} and default["build"] == "beside"
+        first, first_adapted = _press_forces(waiting)
+        again, _ = _press_forces(waiting)
+        assert first_adapted and first == again
+        assert beside.follower is not None
+        cold, cold_adapted = _press_forces(beside)
+        beside.follower.wait()
+        warm, warm_adapted = _press_forces(beside)
+        assert not cold_adapted and warm_adapted and warm == first
+        assert abs(cold[-1] - warm[-1]) > 1e-3 * warm[-1]
+    finally:
+        waiting.close()
+        beside.close()
+
+
+def test_adapted_build_takes_beside_or_wait() -> None:
+    tissue = Tissue("skin patch", fem.rectangle(0.05, 0.05, 0.00625), SKIN, "clamped",
+                    Damping(), 20, (0.005,))  # fmt: skip
+    with pytest.raises(InvalidEngineSettings, match="adapted_build must be one of beside, wait"):
+        NonlinearPlateEngine(tissue, (20, 20), 1e-3, adapted_build="later")
+
+
 @pytest.mark.slow
 def test_a_basis_the_worker_cannot_build_leaves_the_state_on_its_own() -> None:
     # an adaptation that fails in the worker (no system to adapt): the place is given up,
@@ -198,6 +250,13 @@ def test_a_basis_the_worker_cannot_build_leaves_the_state_on_its_own() -> None:
         assert failing._refused == {failing.places([OFF_CENTRE])}
     finally:
         failing.close()
+    # waiting for it: the step that asks is told at once that the place is given up
+    waiting = BasisFollower(broken, 0.00025, wait=True)
+    try:
+        assert waiting.follow(None, [OFF_CENTRE]) is None
+        assert waiting._refused == {waiting.places([OFF_CENTRE])}
+    finally:
+        waiting.close()
     # a worker that cannot even start (a System does not pickle): the modes alone, no error
     unstartable = BasisFollower(functools.partial(Adaptation.of, _patch(), _base(), "held"),
                                 0.00025)  # fmt: skip
