@@ -46,11 +46,11 @@ from membrane_client.protocol import (
     error_reply,
 )
 from membrane_errors import UserError
-from membrane_models.live import PreparingEngine
+from membrane_models.live import PreparingEngine, WaitingEngine
 from membrane_server.dispatch import Answer, Dispatcher
 from membrane_server.heap import keep_temporaries_in_heap, malloc_trim_function
 from membrane_server.reloading import SceneBuilder, describe_changes
-from membrane_server.scene import Scene, load_scene
+from membrane_server.scene import Scene, SceneError, load_scene
 from membrane_server.served import ServedScene
 from membrane_server.sessions import SessionTable
 from membrane_server.stats import Stats
@@ -891,4 +891,13 @@ def _load_scenes(
     names = [spec.name for spec in specs]
     if len(set(names)) != len(names):
         raise ValueError(f"scene names must be distinct, got {names}")
-    return [s if isinstance(s, ServedScene) else ServedScene.load(s, threads) for s in specs]
+    served = [s if isinstance(s, ServedScene) else ServedScene.load(s, threads) for s in specs]
+    for scene in served:  # a step that waits seconds would hold every client's requests
+        if isinstance(scene.live, WaitingEngine) and scene.live.step_waits is not None:
+            raise scene.scene.error(
+                SceneError(
+                    f"{scene.live.step_waits}, which would hold every client's requests: a "
+                    "server does not serve it (step the engine in-process)"
+                )
+            )
+    return served

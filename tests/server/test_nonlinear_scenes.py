@@ -13,6 +13,10 @@ import pytest
 
 from membrane_client import Client, Grasp, Probe, Tool
 from membrane_client.errors import ServerError
+from membrane_models.fem.nonlinear_engine import NonlinearPlateEngine
+from membrane_server.dispatch import Dispatcher
+from membrane_server.in_process import InProcessTransport
+from membrane_server.scene import SCENES_DIR, SceneError
 from membrane_server.served import ServedScene
 from membrane_server.server import Server
 
@@ -47,6 +51,32 @@ def test_the_nonlinear_skin_patch_is_pressed_by_tools_over_the_wire(cache_dir: P
                     session.step(tools=[Tool("sphere", (0.025, 0.025), 0.02, 0.005)])
     finally:
         server.stop()
+
+
+@pytest.mark.slow
+def test_steps_that_wait_for_builds_are_taken_in_process_and_refused_by_a_server(
+    cache_dir: Path, tmp_path: Path
+) -> None:
+    # adapted_build = "wait" holds the step for a tool vector's build: a server refuses the
+    # scene (it would hold every client), one process steps it, every session alike
+    text = (SCENES_DIR / "skin-patch-nonlinear.toml").read_text()
+    path = tmp_path / "skin-wait.toml"
+    path.write_text(text.replace('inplane = "held"', 'inplane = "held"\nadapted_build = "wait"'))
+    with pytest.raises(SceneError, match=r"skin-wait\.toml: .* would hold every client's requests"):
+        Server([str(path)], bind="tcp://127.0.0.1:*")
+    served = ServedScene.load(path)
+    try:
+        transport = InProcessTransport(Dispatcher([served]))
+        with Client("in-process://skin-wait", transport=transport) as client:
+            forces = []
+            for _ in range(2):  # the first waits for the build, the second finds it built
+                with client.session("skin-wait") as session:
+                    tool = Tool("sphere", (0.025, 0.025), 0.002, 0.005)
+                    forces.append(session.step(tools=[tool], frame=False).tools[0].force)
+        assert forces[0] == forces[1] and forces[0] > 0.1  # measured 0.437 N by step 45
+    finally:
+        assert isinstance(served.live, NonlinearPlateEngine)
+        served.live.close()
 
 
 def test_the_nonlinear_rope_takes_probes_grasps_and_tools_over_the_wire() -> None:

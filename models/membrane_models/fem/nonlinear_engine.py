@@ -332,6 +332,14 @@ class NonlinearPlateEngine:
         return StepResult(new, self.frame(new) if frame else None, (), None, (), readings)
 
     @property
+    def step_waits(self) -> str | None:
+        """Why a step may wait (``live.WaitingEngine``): with ``adapted_build="wait"``, for a
+        tool vector's build."""
+        if self.follower is None or not self.follower.waits:
+            return None
+        return 'adapted_build = "wait": a step waits for its tool vector\'s build (seconds)'
+
+    @property
     def compiled(self) -> bool:
         """Whether steps that keep the last matrix and contact set are taken by the compiled
         chord iteration (``reduced_kernel``; default: where numba is installed)."""

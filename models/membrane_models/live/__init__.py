@@ -37,6 +37,7 @@ from membrane_models.live.interface import (
     StepResult,
     Tool,
     ToolReading,
+    WaitingEngine,
 )
 
 __all__ = [
@@ -66,6 +67,7 @@ __all__ = [
     "StepResult",
     "Tool",
     "ToolReading",
+    "WaitingEngine",
     "build_modal_engine",
     "film_frames",
     "film_load",

@@ -42,6 +42,7 @@ __all__ = [
     "StepResult",
     "Tool",
     "ToolReading",
+    "WaitingEngine",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -245,6 +246,16 @@ class PreparingEngine(Protocol):
 
     def prepare(self) -> None:
         """Start that work, off the caller's thread; returns at once."""
+
+
+@runtime_checkable
+class WaitingEngine(Protocol):
+    """An engine whose step may wait for work off its thread (seconds): fine stepped in one
+    process, not in a server, where the waiting step would hold every client's requests."""
+
+    @property
+    def step_waits(self) -> str | None:
+        """Why a step may wait, in a few words (None: it never does)."""
 
 
 @runtime_checkable
