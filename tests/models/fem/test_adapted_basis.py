@@ -57,6 +57,12 @@ def _pressed(plate: ReducedPlate, rows: list[ToolPoints]) -> float:
     return float(solved.forces.sum())
 
 
+def _skin_tissue() -> Tissue:
+    """The skin patch on the 6.25 mm mesh, its 20 modes: the engines' tissue here."""
+    return Tissue("skin patch", fem.rectangle(0.05, 0.05, 0.00625), SKIN, "clamped",
+                  Damping(), 20, (0.005,))  # fmt: skip
+
+
 def _energy(plate: ReducedPlate, q: np.ndarray, v: np.ndarray) -> float:
     return float(0.5 * v @ v + 0.5 * np.sum(plate.omega**2 * q * q) + plate.stretching_energy(q))
 
@@ -154,8 +160,7 @@ def test_the_engine_steps_onto_the_tools_vector_once_it_is_built(
     # step that moves onto it is the step on the modes alone but for the new coordinate's own
     # small motion, and a press goes on from it
     monkeypatch.setenv("MEMBRANE_CACHE_DIR", str(tmp_path))
-    tissue = Tissue("skin patch", fem.rectangle(0.05, 0.05, 0.00625), SKIN, "clamped",
-                    Damping(), 20, (0.005,))  # fmt: skip
+    tissue = _skin_tissue()
     engine = NonlinearPlateEngine(tissue, (20, 20), 1e-3)
     plain = NonlinearPlateEngine(tissue, (20, 20), 1e-3, adapted=False)
     try:
@@ -208,8 +213,7 @@ def test_a_press_waiting_for_its_vector_is_the_same_whatever_the_build_took(
     # waits) and a later press (the vector long built) are the same to the bit; beside, the
     # first press goes on the modes alone while its vector is built, and they differ
     monkeypatch.setenv("MEMBRANE_CACHE_DIR", str(tmp_path))
-    tissue = Tissue("skin patch", fem.rectangle(0.05, 0.05, 0.00625), SKIN, "clamped",
-                    Damping(), 20, (0.005,))  # fmt: skip
+    tissue = _skin_tissue()
     waiting = NonlinearPlateEngine(tissue, (20, 20), 1e-3, adapted_build="wait")
     beside = NonlinearPlateEngine(tissue, (20, 20), 1e-3)
     try:
@@ -231,8 +235,7 @@ def test_a_press_waiting_for_its_vector_is_the_same_whatever_the_build_took(
 
 
 def test_adapted_build_takes_beside_or_wait() -> None:
-    tissue = Tissue("skin patch", fem.rectangle(0.05, 0.05, 0.00625), SKIN, "clamped",
-                    Damping(), 20, (0.005,))  # fmt: skip
+    tissue = _skin_tissue()
     with pytest.raises(InvalidEngineSettings, match="adapted_build must be one of beside, wait"):
         NonlinearPlateEngine(tissue, (20, 20), 1e-3, adapted_build="later")
 
